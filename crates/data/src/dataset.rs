@@ -1,0 +1,81 @@
+//! Datasets as lazy, indexable collections of frames, and format detection.
+
+use std::path::Path;
+
+use crate::error::DataError;
+use crate::frame::{Frame, FrameInfo};
+use crate::points::read_bin;
+
+/// The on-disk formats pi3det reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    Pi3det,
+    Kitti,
+    Nuscenes,
+}
+
+/// A dataset: an index of frames whose points are read only when a frame is loaded.
+/// Implementations are cheap to share across threads.
+pub trait Dataset: Send + Sync {
+    fn format(&self) -> Format;
+    fn root(&self) -> &Path;
+    fn len(&self) -> usize;
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Frame metadata and annotations, without points.
+    fn info(&self, index: usize) -> Result<FrameInfo, DataError>;
+    /// The frame with its points (non-finite points dropped, see [`read_bin`]).
+    fn load(&self, index: usize) -> Result<Frame, DataError> {
+        let info = self.info(index)?;
+        let channels: Vec<&str> = info.point_channels.iter().map(String::as_str).collect();
+        let points = read_bin(&info.points_path, &channels)?.cloud;
+        Ok(Frame { info, points })
+    }
+}
+
+/// Opens a dataset, detecting its format: a folder with `pi3det_infos_*.pkl`, a KITTI folder (with
+/// `velodyne/`, or `training/velodyne/`), a Pi3DET info `.pkl`, or an mmdet3d nuScenes info `.pkl`.
+/// A folder holding exactly one mmdet3d info file is opened through it.
+pub fn open(path: &Path) -> Result<Box<dyn Dataset>, DataError> {
+    use crate::{kitti::KittiDataset, nuscenes, pi3det};
+    if !path.exists() {
+        return Err(DataError::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, "no such file or folder")));
+    }
+    if path.is_dir() {
+        if !pi3det::info_files(path)?.is_empty() {
+            return Ok(Box::new(pi3det::Pi3detDataset::open(path)?));
+        }
+        if path.join("velodyne").is_dir() || path.join("training/velodyne").is_dir() {
+            return Ok(Box::new(KittiDataset::open(path)?));
+        }
+        let pkls: Vec<_> = std::fs::read_dir(path)
+            .map_err(|e| DataError::io(path, e))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "pkl"))
+            .collect();
+        if let [one] = pkls.as_slice() {
+            return open(one);
+        }
+        return Err(DataError::UnknownFormat {
+            path: path.to_path_buf(),
+            hint: "expected pi3det_infos_*.pkl, a KITTI velodyne/ folder, or one mmdet3d info .pkl".into(),
+        });
+    }
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+    if name.starts_with("pi3det_infos_") {
+        return Ok(Box::new(pi3det::Pi3detDataset::open(path)?));
+    }
+    if name.ends_with(".pkl") {
+        // Decide by content: a list of info dicts is Pi3DET, a metainfo/data_list dict is mmdet3d.
+        let value = crate::pickle::from_path(path).map_err(|source| DataError::Pickle { path: path.to_path_buf(), source })?;
+        if nuscenes::looks_like_mmdet3d(&value) {
+            return Ok(Box::new(nuscenes::NuscenesDataset::from_value(path, &value, None)?));
+        }
+        if value.as_list().is_some() {
+            return Ok(Box::new(pi3det::Pi3detDataset::from_value(path, &value)?));
+        }
+    }
+    Err(DataError::UnknownFormat { path: path.to_path_buf(), hint: "unrecognised file".into() })
+}

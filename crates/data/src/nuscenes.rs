@@ -1,0 +1,122 @@
+//! nuScenes through mmdet3d v1.1 info files: a dict with `metainfo.categories` (name → label) and
+//! `data_list`, one sample each with `lidar_points.lidar_path` (float32 ×5: x, y, z, intensity,
+//! ring), `lidar2ego`, `ego2global` and `instances` whose `bbox_3d` is
+//! `[x, y, z_gravity_centre, l, w, h, yaw]` in the LiDAR frame — already our box convention.
+
+use std::path::{Path, PathBuf};
+
+use pi3det_geometry::{Box3d, Pose, PoseExt};
+
+use crate::dataset::{Dataset, Format};
+use crate::error::DataError;
+use crate::fields::Record;
+use crate::frame::{FrameInfo, Object, Platform};
+use crate::pickle::{self, Value};
+
+pub struct NuscenesDataset {
+    root: PathBuf,
+    frames: Vec<FrameInfo>,
+}
+
+/// Whether a decoded pickle looks like an mmdet3d v1.x info file.
+pub fn looks_like_mmdet3d(v: &Value) -> bool {
+    v.get("data_list").is_some() && v.get("metainfo").is_some()
+}
+
+impl NuscenesDataset {
+    /// Opens an info `.pkl`; point files are looked up beside it, under `samples/LIDAR_TOP/`
+    /// beside it, or under `data_root` when given.
+    pub fn open(info_file: &Path, data_root: Option<&Path>) -> Result<Self, DataError> {
+        let value = pickle::from_path(info_file)
+            .map_err(|source| DataError::Pickle { path: info_file.to_path_buf(), source })?;
+        Self::from_value(info_file, &value, data_root)
+    }
+
+    /// From an already decoded info file.
+    pub fn from_value(info_file: &Path, value: &Value, data_root: Option<&Path>) -> Result<Self, DataError> {
+        let dir = info_file.parent().unwrap_or(Path::new(".")).to_path_buf();
+        let root = data_root.map(Path::to_path_buf).unwrap_or(dir);
+        let top = Record { path: info_file, what: "info file".into() };
+        let categories = top.get(top.get(value, "metainfo")?, "categories")?;
+        let mut label_names: Vec<(i64, String)> = categories
+            .as_dict()
+            .ok_or_else(|| top.err("'metainfo.categories' should be a dict"))?
+            .iter()
+            .filter_map(|(k, v)| Some((v.as_i64()?, k.as_str()?.to_string())))
+            .collect();
+        label_names.sort();
+        let samples = top
+            .get(value, "data_list")?
+            .as_list()
+            .ok_or_else(|| top.err("'data_list' should be a list"))?;
+        let frames = samples
+            .iter()
+            .enumerate()
+            .map(|(i, s)| parse_sample(info_file, &root, &label_names, i, s))
+            .collect::<Result<_, _>>()?;
+        Ok(Self { root, frames })
+    }
+}
+
+fn resolve_points(root: &Path, lidar_path: &str) -> PathBuf {
+    let candidates = [root.join(lidar_path), root.join("samples/LIDAR_TOP").join(lidar_path)];
+    candidates.iter().find(|p| p.exists()).cloned().unwrap_or_else(|| candidates[0].clone())
+}
+
+fn parse_sample(
+    file: &Path,
+    root: &Path,
+    labels: &[(i64, String)],
+    index: usize,
+    s: &Value,
+) -> Result<FrameInfo, DataError> {
+    let rec = Record { path: file, what: format!("data_list[{index}]") };
+    let id = rec.opt_str(s, "token")?.unwrap_or_else(|| index.to_string());
+    let lidar = rec.get(s, "lidar_points")?;
+    let lidar_path = rec.str(lidar, "lidar_path")?;
+    let mut info = FrameInfo::new(id, resolve_points(root, &lidar_path));
+    let n_feats = rec.opt_f64(lidar, "num_pts_feats")?.unwrap_or(5.0) as usize;
+    let extra = ["ring", "time", "extra"];
+    info.point_channels.extend(extra.iter().take(n_feats.saturating_sub(4)).map(|s| s.to_string()));
+    info.platform = Platform::Vehicle;
+    info.timestamp_s = rec.opt_f64(s, "timestamp")?;
+    if let (Some(l2e), Some(e2g)) = (lidar.get("lidar2ego"), s.get("ego2global")) {
+        let ego_from_lidar = Pose::try_from_matrix(&rec.square::<4>(l2e, "lidar2ego")?).map_err(|e| rec.err(e))?;
+        let world_from_ego = Pose::try_from_matrix(&rec.square::<4>(e2g, "ego2global")?).map_err(|e| rec.err(e))?;
+        info.world_from_lidar = Some(world_from_ego * ego_from_lidar);
+    }
+    let instances = match s.get("instances") {
+        Some(v) => v.as_list().ok_or_else(|| rec.err("'instances' should be a list"))?,
+        None => &[],
+    };
+    for (k, inst) in instances.iter().enumerate() {
+        let r = Record { path: file, what: format!("data_list[{index}].instances[{k}]") };
+        let row = r.matrix(&Value::List(vec![r.get(inst, "bbox_3d")?.clone()]), "bbox_3d", 7)?.remove(0);
+        let b = Box3d::try_from_array(std::array::from_fn(|j| row[j])).map_err(|e| r.err(e))?;
+        let label = r.get(inst, "bbox_label_3d")?.as_i64().ok_or_else(|| r.err("'bbox_label_3d' should be an integer"))?;
+        // mmdet3d marks classes outside its list with -1; keep them under a visible name.
+        let name = labels.iter().find(|(l, _)| *l == label).map_or_else(|| format!("label{label}"), |(_, n)| n.clone());
+        let mut o = Object::new(name, b);
+        o.num_points = inst.get("num_lidar_pts").and_then(Value::as_i64).and_then(|n| u32::try_from(n).ok());
+        info.objects.push(o);
+    }
+    Ok(info)
+}
+
+impl Dataset for NuscenesDataset {
+    fn format(&self) -> Format {
+        Format::Nuscenes
+    }
+    fn root(&self) -> &Path {
+        &self.root
+    }
+    fn len(&self) -> usize {
+        self.frames.len()
+    }
+    fn info(&self, index: usize) -> Result<FrameInfo, DataError> {
+        self.frames
+            .get(index)
+            .cloned()
+            .ok_or_else(|| DataError::invalid(&self.root, format!("frame index {index} out of range")))
+    }
+}

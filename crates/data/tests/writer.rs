@@ -1,0 +1,102 @@
+//! The Pi3DET-layout writer: round trip through our reader, never overwrites unasked, and Python's
+//! `pickle` + numpy load what it writes into the arrays the public code expects.
+
+use std::path::Path;
+use std::process::Command;
+
+use pi3det_data::pi3det::Pi3detWriter;
+use pi3det_data::{open, Frame, FrameInfo, Object, Platform, PointCloud};
+use pi3det_geometry::{Box3d, Pose, PoseExt};
+
+fn frame(id: &str, seq: &str) -> Frame {
+    let mut info = FrameInfo::new(id, Default::default());
+    info.platform = Platform::Drone;
+    info.sequence = Some(seq.into());
+    info.timestamp_s = Some(12.5);
+    info.world_from_lidar = Some(Pose::from_xyz_rpy([1.0, 2.0, 10.0], 0.1, -0.2, 0.3));
+    let mut car = Object::new("Car", Box3d::new(10.0, 1.0, -9.0, 4.2, 1.9, 1.6, 0.25));
+    car.num_points = Some(3);
+    info.objects = vec![car, Object::new("Pedestrian", Box3d::new(5.0, -2.0, -9.5, 0.6, 0.7, 1.75, -1.0))];
+    let points = PointCloud::from_xyzi(&[[10.0, 1.0, -9.0, 0.5], [10.5, 1.2, -9.1, 0.25], [9.0, 0.5, -8.5, 1.0], [0.0, 0.0, 0.0, 0.0]]);
+    Frame { info, points }
+}
+
+fn write_dataset(root: &Path, overwrite: bool) -> Result<(), pi3det_data::DataError> {
+    let mut w = Pi3detWriter::create(root, "train", overwrite)?;
+    w.write_frame(&frame("0000000", "seq_a"))?;
+    w.write_frame(&frame("0000001", "seq_a"))?;
+    w.finish()?;
+    Ok(())
+}
+
+#[test]
+fn round_trip_through_reader() {
+    let dir = tempfile::tempdir().unwrap();
+    write_dataset(dir.path(), false).unwrap();
+    let ds = open(dir.path()).unwrap();
+    assert_eq!(ds.len(), 2);
+    let back = ds.load(1).unwrap();
+    let orig = frame("0000001", "seq_a");
+    assert_eq!(back.info.id, "0000001");
+    assert_eq!(back.info.platform, Platform::Drone);
+    assert_eq!(back.info.sequence.as_deref(), Some("seq_a"));
+    assert_eq!(back.info.timestamp_s, Some(12.5));
+    assert_eq!(back.points, orig.points);
+    let (p, q) = (back.info.world_from_lidar.unwrap(), orig.info.world_from_lidar.unwrap());
+    assert!((p.to_homogeneous() - q.to_homogeneous()).abs().max() < 1e-12);
+    for (a, b) in back.info.objects.iter().zip(&orig.info.objects) {
+        assert_eq!(a.name, b.name);
+        assert_eq!(a.num_points, b.num_points);
+        for (x, y) in a.box3d.to_array().iter().zip(b.box3d.to_array()) {
+            assert!((x - y).abs() < 1e-5);
+        }
+    }
+}
+
+#[test]
+fn refuses_to_overwrite_unless_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    write_dataset(dir.path(), false).unwrap();
+    let e = write_dataset(dir.path(), false).err().unwrap().to_string();
+    assert!(e.contains("already exists"), "{e}");
+    write_dataset(dir.path(), true).unwrap();
+}
+
+/// Python with numpy: `PI3DET_PYTHON`, the repo's `.venv`, or `python3`.
+fn python_with_numpy() -> Option<String> {
+    let venv = concat!(env!("CARGO_MANIFEST_DIR"), "/../../.venv/bin/python");
+    let candidates = [std::env::var("PI3DET_PYTHON").ok(), Some(venv.to_string()), Some("python3".into())];
+    candidates.into_iter().flatten().find(|py| {
+        Command::new(py).args(["-c", "import numpy"]).output().map(|o| o.status.success()).unwrap_or(false)
+    })
+}
+
+#[test]
+fn python_pickle_loads_the_info_file() {
+    let Some(py) = python_with_numpy() else {
+        eprintln!("note: no python3 with numpy (run scripts/setup-python); skipping the Python load check");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    write_dataset(dir.path(), false).unwrap();
+    let script = r#"
+import pickle, sys, numpy as np
+infos = pickle.load(open(sys.argv[1] + '/pi3det_infos_train.pkl', 'rb'))
+assert isinstance(infos, list) and len(infos) == 2
+i = infos[1]
+assert i['frame_id'] == '0000001' and i['platform'] == 'drone' and i['sequence'] == 'seq_a'
+assert i['point_clout_path'] == 'training/point_cloud/0000001.bin'
+a = i['annos']
+assert a['gt_names'].dtype.kind == 'U' and list(a['gt_names']) == ['Car', 'Pedestrian']
+assert a['gt_boxes_lidar'].dtype == np.float32 and a['gt_boxes_lidar'].shape == (2, 7)
+assert abs(a['gt_boxes_lidar'][0, 3] - 4.2) < 1e-6
+assert list(a['num_points_in_gt']) == [3, -1]
+assert i['pose'].shape == (4, 4) and i['pose'].dtype == np.float64 and i['pose'][3, 3] == 1.0
+pts = np.fromfile(sys.argv[1] + '/' + i['point_clout_path'], dtype=np.float32).reshape(-1, 4)
+assert pts.shape == (4, 4) and pts[1, 3] == 0.25
+print('ok')
+"#;
+    let out = Command::new(&py).args(["-c", script, dir.path().to_str().unwrap()]).output().unwrap();
+    assert!(out.status.success(), "python failed: {}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(String::from_utf8_lossy(&out.stdout).trim(), "ok");
+}
