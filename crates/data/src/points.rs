@@ -18,7 +18,7 @@ impl PointCloud {
     /// From interleaved data; `channels.len()` is the stride (≥ 3).
     pub fn from_vec(data: Vec<f32>, channels: Vec<String>) -> Result<Self, DataError> {
         let stride = channels.len();
-        if stride < 3 || data.len() % stride != 0 {
+        if stride < 3 || !data.len().is_multiple_of(stride) {
             return Err(DataError::invalid(
                 "<memory>",
                 format!("{} values do not make points of {} channels", data.len(), stride),
@@ -113,7 +113,7 @@ pub fn read_bin(path: &Path, channels: &[&str]) -> Result<BinRead, DataError> {
     let bytes = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
     let stride = channels.len();
     let point_bytes = 4 * stride;
-    if bytes.len() % point_bytes != 0 {
+    if !bytes.len().is_multiple_of(point_bytes) {
         return Err(DataError::invalid(
             path,
             format!(

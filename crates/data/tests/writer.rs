@@ -1,6 +1,8 @@
 //! The Pi3DET-layout writer: round trip through our reader, never overwrites unasked, and Python's
 //! `pickle` + numpy load what it writes into the arrays the public code expects.
 
+mod common;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -99,4 +101,31 @@ print('ok')
     let out = Command::new(&py).args(["-c", script, dir.path().to_str().unwrap()]).output().unwrap();
     assert!(out.status.success(), "python failed: {}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(String::from_utf8_lossy(&out.stdout).trim(), "ok");
+}
+
+#[test]
+fn kitti_result_files_round_trip_through_calib() {
+    use pi3det_data::kitti::{read_labels, write_result_file};
+    use pi3det_data::Calib;
+    let kitti = open(&common::shared_data("kitti/training")).unwrap();
+    let info = kitti.info(1).unwrap();
+    let Some(Calib::Kitti(calib)) = &info.calib else { panic!("KITTI frames carry a calib") };
+    let mut dets = info.objects.clone();
+    for (k, d) in dets.iter_mut().enumerate() {
+        d.score = Some(0.9 - 0.1 * k as f64);
+    }
+    let dir = tempfile::tempdir().unwrap();
+    write_result_file(dir.path(), &info.id, &dets, Some(calib), false).unwrap();
+    assert!(write_result_file(dir.path(), &info.id, &dets, Some(calib), false).is_err());
+    let back = read_labels(&dir.path().join("000001.txt")).unwrap();
+    assert_eq!(back.len(), 3);
+    for (l, d) in back.iter().zip(&dets) {
+        assert_eq!(l.name, d.name);
+        assert_eq!(l.score, d.score);
+        let b = l.to_object(calib).box3d;
+        // 4 decimals in the file: millimetre agreement.
+        for (x, y) in b.to_array().iter().zip(d.box3d.to_array()) {
+            assert!((x - y).abs() < 2e-3, "{b:?} vs {:?}", d.box3d);
+        }
+    }
 }

@@ -162,10 +162,10 @@ fn matrices_match_pairwise_calls() {
     let m = bev_iou_matrix(&a, &b);
     let m3 = iou_3d_matrix(&a, &b);
     assert_eq!((m.rows, m.cols), (37, 23));
-    for i in 0..a.len() {
-        for j in 0..b.len() {
-            assert_eq!(m.get(i, j), bev_iou(&a[i], &b[j]));
-            assert_eq!(m3.get(i, j), iou_3d(&a[i], &b[j]));
+    for (i, ai) in a.iter().enumerate() {
+        for (j, bj) in b.iter().enumerate() {
+            assert_eq!(m.get(i, j), bev_iou(ai, bj));
+            assert_eq!(m3.get(i, j), iou_3d(ai, bj));
         }
     }
     assert_eq!(bev_iou_matrix(&a, &[]).data.len(), 0);

@@ -32,6 +32,7 @@ enum Kind {
 }
 
 impl Kind {
+    /// Bytes per element; `kind()` guarantees that this does not overflow.
     fn itemsize(self) -> usize {
         match self {
             Kind::Bool => 1,
@@ -99,7 +100,13 @@ impl Dtype {
             'V' => return Err(self.unsupported(offset, "void/record dtypes are not supported")),
             _ => return Err(self.unsupported(offset, "unknown type code")),
         };
-        Ok(kind)
+        // Real item sizes are small; this also keeps `itemsize` from overflowing.
+        match kind {
+            Kind::Str(n) | Kind::Bytes(n) if n > 1 << 32 => {
+                Err(self.unsupported(offset, "item size too large"))
+            }
+            _ => Ok(kind),
+        }
     }
 
     /// Whether values are big-endian (`=` is taken as little-endian: every machine that

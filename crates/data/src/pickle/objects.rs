@@ -215,7 +215,7 @@ pub(crate) fn into_value(root: Item, input_len: usize, offset: usize) -> Result<
         in_progress: HashSet::new(),
         // Shared sub-trees are copied once per reference; bound the total so that a small
         // pickle of nested shared references cannot expand exponentially.
-        budget: input_len.saturating_mul(64).saturating_add(10_000_000),
+        budget: input_len.saturating_mul(64).saturating_add(1_000_000),
     };
     cx.item(root, 0)
 }
