@@ -69,7 +69,8 @@ pub fn open(path: &Path) -> Result<Box<dyn Dataset>, DataError> {
     }
     if name.ends_with(".pkl") {
         // Decide by content: a list of info dicts is Pi3DET, a metainfo/data_list dict is mmdet3d.
-        let value = crate::pickle::from_path(path).map_err(|source| DataError::Pickle { path: path.to_path_buf(), source })?;
+        let value =
+            crate::pickle::from_path(path).map_err(|source| DataError::Pickle { path: path.to_path_buf(), source })?;
         if nuscenes::looks_like_mmdet3d(&value) {
             return Ok(Box::new(nuscenes::NuscenesDataset::from_value(path, &value, None)?));
         }

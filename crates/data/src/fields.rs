@@ -67,7 +67,9 @@ impl Record<'_> {
     /// A 1-D list of strings from a numpy string/object array or a list.
     pub fn strings(&self, x: &Value, key: &str) -> Result<Vec<String>, DataError> {
         match x {
-            Value::Array(a) => a.to_strings().ok_or_else(|| self.err(format!("'{key}' should hold strings, found {}", describe(a)))),
+            Value::Array(a) => {
+                a.to_strings().ok_or_else(|| self.err(format!("'{key}' should hold strings, found {}", describe(a))))
+            }
             Value::List(items) | Value::Tuple(items) => items
                 .iter()
                 .map(|s| scalar_string(s).ok_or_else(|| self.err(format!("'{key}' should hold strings"))))

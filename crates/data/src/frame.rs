@@ -85,7 +85,11 @@ impl Object {
 pub enum Calib {
     Kitti(KittiCalib),
     /// Pi3DET's `calib`: `E` 4×4 LiDAR→camera, `I` 3×3 intrinsics, `D` distortion.
-    Pinhole { camera_from_lidar: [[f64; 4]; 4], intrinsics: [[f64; 3]; 3], distortion: Vec<f64> },
+    Pinhole {
+        camera_from_lidar: [[f64; 4]; 4],
+        intrinsics: [[f64; 3]; 3],
+        distortion: Vec<f64>,
+    },
 }
 
 /// Everything about a frame except its points: what a dataset index holds, cheap to load for

@@ -113,7 +113,11 @@ pub fn parse_label_line(line: &str) -> Result<KittiLabel, String> {
     }
     let num = |i: usize| -> Result<f64, String> {
         let v: f64 = f[i].parse().map_err(|_| format!("field {} ('{}') is not a number", i + 1, f[i]))?;
-        if v.is_finite() { Ok(v) } else { Err(format!("field {} is not finite", i + 1)) }
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(format!("field {} is not finite", i + 1))
+        }
     };
     let occlusion = f[2].parse::<f64>().map_err(|_| format!("occlusion '{}' is not a number", f[2]))? as i32;
     let [h, w, l] = [num(8)?, num(9)?, num(10)?];
@@ -123,7 +127,11 @@ pub fn parse_label_line(line: &str) -> Result<KittiLabel, String> {
         occlusion,
         alpha: num(3)?,
         bbox_2d: [num(4)?, num(5)?, num(6)?, num(7)?],
-        camera_box: CameraBox { location: [num(11)?, num(12)?, num(13)?], dimensions_lhw: [l, h, w], rotation_y: num(14)? },
+        camera_box: CameraBox {
+            location: [num(11)?, num(12)?, num(13)?],
+            dimensions_lhw: [l, h, w],
+            rotation_y: num(14)?,
+        },
         score: if f.len() == 16 { Some(num(15)?) } else { None },
     })
 }
@@ -147,7 +155,8 @@ pub fn read_calib(path: &Path) -> Result<KittiCalib, DataError> {
             .enumerate()
             .find(|(_, l)| l.split(':').next().map(str::trim) == Some(key))
             .ok_or_else(|| DataError::invalid(path, format!("missing '{key}'")))?;
-        let vals: Result<Vec<f64>, _> = line.split_once(':').map(|x| x.1).unwrap_or("").split_whitespace().map(str::parse).collect();
+        let vals: Result<Vec<f64>, _> =
+            line.split_once(':').map(|x| x.1).unwrap_or("").split_whitespace().map(str::parse).collect();
         match vals {
             Ok(v) if v.len() == n && v.iter().all(|x| x.is_finite()) => Ok(v),
             _ => Err(DataError::line(path, i + 1, format!("'{key}' needs {n} finite numbers"))),
@@ -211,7 +220,9 @@ mod tests {
 
     #[test]
     fn parses_label_and_result_lines() {
-        let l = parse_label_line("Pedestrian 0.00 0 -0.20 712.40 143.00 810.73 307.92 1.89 0.48 1.20 1.84 1.47 8.41 0.01").unwrap();
+        let l =
+            parse_label_line("Pedestrian 0.00 0 -0.20 712.40 143.00 810.73 307.92 1.89 0.48 1.20 1.84 1.47 8.41 0.01")
+                .unwrap();
         assert_eq!(l.name, "Pedestrian");
         assert_eq!(l.camera_box.dimensions_lhw, [1.2, 1.89, 0.48]);
         assert_eq!(l.score, None);
@@ -222,8 +233,11 @@ mod tests {
     #[test]
     fn malformed_lines_are_explained() {
         assert!(parse_label_line("Car 0 0").unwrap_err().contains("15 or 16"));
-        let e = parse_label_line("Car 0.00 0 -0.20 712.40 143.00 810.73 307.92 1.89 abc 1.20 1.84 1.47 8.41 0.01").unwrap_err();
+        let e = parse_label_line("Car 0.00 0 -0.20 712.40 143.00 810.73 307.92 1.89 abc 1.20 1.84 1.47 8.41 0.01")
+            .unwrap_err();
         assert!(e.contains("field 10") && e.contains("abc"), "{e}");
-        assert!(parse_label_line("Car 0.00 0 -0.20 712.40 143.00 810.73 307.92 1.89 NaN 1.20 1.84 1.47 8.41 0.01").is_err());
+        assert!(
+            parse_label_line("Car 0.00 0 -0.20 712.40 143.00 810.73 307.92 1.89 NaN 1.20 1.84 1.47 8.41 0.01").is_err()
+        );
     }
 }

@@ -45,10 +45,7 @@ impl NuscenesDataset {
             .filter_map(|(k, v)| Some((v.as_i64()?, k.as_str()?.to_string())))
             .collect();
         label_names.sort();
-        let samples = top
-            .get(value, "data_list")?
-            .as_list()
-            .ok_or_else(|| top.err("'data_list' should be a list"))?;
+        let samples = top.get(value, "data_list")?.as_list().ok_or_else(|| top.err("'data_list' should be a list"))?;
         let frames = samples
             .iter()
             .enumerate()
@@ -93,7 +90,8 @@ fn parse_sample(
         let r = Record { path: file, what: format!("data_list[{index}].instances[{k}]") };
         let row = r.matrix(&Value::List(vec![r.get(inst, "bbox_3d")?.clone()]), "bbox_3d", 7)?.remove(0);
         let b = Box3d::try_from_array(std::array::from_fn(|j| row[j])).map_err(|e| r.err(e))?;
-        let label = r.get(inst, "bbox_label_3d")?.as_i64().ok_or_else(|| r.err("'bbox_label_3d' should be an integer"))?;
+        let label =
+            r.get(inst, "bbox_label_3d")?.as_i64().ok_or_else(|| r.err("'bbox_label_3d' should be an integer"))?;
         // mmdet3d marks classes outside its list with -1; keep them under a visible name.
         let name = labels.iter().find(|(l, _)| *l == label).map_or_else(|| format!("label{label}"), |(_, n)| n.clone());
         let mut o = Object::new(name, b);

@@ -173,7 +173,8 @@ fn parse_annos(rec: &Record, annos: &Value) -> Result<Vec<Object>, DataError> {
         .zip(boxes)
         .enumerate()
         .map(|(k, (name, row))| {
-            let b = Box3d::try_from_array(std::array::from_fn(|j| row[j])).map_err(|e| rec.err(format!("box {k}: {e}")))?;
+            let b =
+                Box3d::try_from_array(std::array::from_fn(|j| row[j])).map_err(|e| rec.err(format!("box {k}: {e}")))?;
             let mut o = Object::new(name, b);
             // numpy files use -1 for "not counted".
             o.num_points = counts.as_ref().and_then(|c| u32::try_from(c[k]).ok());

@@ -63,7 +63,8 @@ struct FrameStats {
 
 fn frame_stats(frame: &Frame, dropped: usize, per_box: bool) -> FrameStats {
     let info = &frame.info;
-    let mut counts = Counts { frames: 1, points: frame.points.len() as u64, dropped_points: dropped as u64, ..Default::default() };
+    let mut counts =
+        Counts { frames: 1, points: frame.points.len() as u64, dropped_points: dropped as u64, ..Default::default() };
     for o in &info.objects {
         *counts.boxes_per_class.entry(o.name.clone()).or_default() += 1;
     }

@@ -62,7 +62,11 @@ fn malformed_label_line_gives_file_and_line() {
 #[test]
 fn unknown_class_is_kept() {
     let dir = tempfile::tempdir().unwrap();
-    let p = write(dir.path(), "l.txt", b"Hovercraft 0.00 0 1.85 387.63 181.54 423.81 203.12 1.67 1.87 3.69 -16.53 2.39 58.49 1.57\n");
+    let p = write(
+        dir.path(),
+        "l.txt",
+        b"Hovercraft 0.00 0 1.85 387.63 181.54 423.81 203.12 1.67 1.87 3.69 -16.53 2.39 58.49 1.57\n",
+    );
     assert_eq!(read_labels(&p).unwrap()[0].name, "Hovercraft");
 }
 
@@ -93,13 +97,22 @@ fn pi3det_info_with_bad_fields() {
     let info = |boxes: NdArray, names: Vec<String>| {
         Value::List(vec![Value::dict([
             ("frame_id", Value::Str("0000000".into())),
-            ("annos", Value::dict([("gt_names", Value::Array(NdArray::from_vec(names))), ("gt_boxes_lidar", Value::Array(boxes))])),
+            (
+                "annos",
+                Value::dict([
+                    ("gt_names", Value::Array(NdArray::from_vec(names))),
+                    ("gt_boxes_lidar", Value::Array(boxes)),
+                ]),
+            ),
         ])])
     };
     let two = NdArray::new(vec![2, 7], vec![0.0f32; 14]).unwrap();
     write(dir.path(), "pi3det_infos_train.pkl", &to_vec(&info(two, vec!["Car".into()])).unwrap());
     let e = open(dir.path()).err().unwrap().to_string();
-    assert!(e.contains("pi3det_infos_train.pkl") && e.contains("frame 0000000") && e.contains("1 gt_names but 2"), "{e}");
+    assert!(
+        e.contains("pi3det_infos_train.pkl") && e.contains("frame 0000000") && e.contains("1 gt_names but 2"),
+        "{e}"
+    );
     let nan = NdArray::new(vec![1, 7], vec![f32::NAN, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0]).unwrap();
     write(dir.path(), "pi3det_infos_train.pkl", &to_vec(&info(nan, vec!["Car".into()])).unwrap());
     let e = open(dir.path()).err().unwrap().to_string();

@@ -15,9 +15,7 @@ fn shared(rel: &str) -> PathBuf {
 }
 
 fn str_of<'a>(v: &'a Value, key: &str) -> &'a str {
-    v.get(key)
-        .and_then(Value::as_str)
-        .unwrap_or_else(|| panic!("{key} is not a str"))
+    v.get(key).and_then(Value::as_str).unwrap_or_else(|| panic!("{key} is not a str"))
 }
 
 fn assert_close(a: f64, b: f64) {
@@ -30,19 +28,13 @@ fn pi3det_infos() {
     let frames = infos.as_list().expect("a list of frames");
     assert_eq!(frames.len(), 6);
     let ids: Vec<&str> = frames.iter().map(|f| str_of(f, "frame_id")).collect();
-    assert_eq!(
-        ids,
-        ["0000000", "0000001", "0000002", "0000003", "0000004", "0000005"]
-    );
+    assert_eq!(ids, ["0000000", "0000001", "0000002", "0000003", "0000004", "0000005"]);
 
     // Frame 0: one pedestrian.
     let f0 = &frames[0];
     assert_eq!(str_of(f0, "platform"), "vehicle");
     assert_eq!(str_of(f0, "image_path"), "training/image/0000000.jpg");
-    assert_eq!(
-        str_of(f0, "point_clout_path"),
-        "training/point_cloud/0000000.bin"
-    );
+    assert_eq!(str_of(f0, "point_clout_path"), "training/point_cloud/0000000.bin");
     let annos = f0.get("annos").unwrap();
     let names = annos.get("gt_names").and_then(Value::as_array).unwrap();
     assert!(matches!(names.data, ArrayData::Str(_)));
@@ -55,10 +47,7 @@ fn pi3det_infos() {
     let calib = f0.get("calib").unwrap();
     let intrinsics = calib.get("I").and_then(Value::as_array).unwrap();
     assert_eq!(intrinsics.shape(), &[3, 3]);
-    assert_eq!(
-        intrinsics.to_f64_vec().unwrap(),
-        [707.0493, 0.0, 604.0814, 0.0, 707.0493, 180.5066, 0.0, 0.0, 1.0]
-    );
+    assert_eq!(intrinsics.to_f64_vec().unwrap(), [707.0493, 0.0, 604.0814, 0.0, 707.0493, 180.5066, 0.0, 0.0, 1.0]);
     let d = calib.get("D").and_then(Value::as_array).unwrap();
     assert_eq!(d.shape(), &[5]);
     assert_eq!(d.to_f64_vec().unwrap(), [0.0; 5]);
@@ -69,12 +58,7 @@ fn pi3det_infos() {
     let names = annos.get("gt_names").and_then(Value::as_array).unwrap();
     assert_eq!(names.dtype_name(), "str");
     assert_eq!(names.to_strings().unwrap(), ["Truck", "Car", "Cyclist"]);
-    let rows = annos
-        .get("gt_boxes_lidar")
-        .and_then(Value::as_array)
-        .unwrap()
-        .to_f64_rows()
-        .unwrap();
+    let rows = annos.get("gt_boxes_lidar").and_then(Value::as_array).unwrap().to_f64_rows().unwrap();
     assert_eq!(rows.len(), 3);
     assert!(rows.iter().all(|r| r.len() == 7));
     assert_close(rows[0][0], 69.724792);
@@ -111,10 +95,7 @@ fn pi3det_infos_round_trip() {
 
 #[test]
 fn nuscenes_info() {
-    let info = pickle::from_path(shared(
-        "nuscenes_demo/n015-2018-07-24-11-22-45+0800.pkl",
-    ))
-    .unwrap();
+    let info = pickle::from_path(shared("nuscenes_demo/n015-2018-07-24-11-22-45+0800.pkl")).unwrap();
     let meta = info.get("metainfo").unwrap();
     assert_eq!(str_of(meta, "dataset"), "nuscenes");
     assert_eq!(str_of(meta, "version"), "v1.0-mini");
@@ -129,10 +110,7 @@ fn nuscenes_info() {
     assert_eq!(sample.get("timestamp").and_then(Value::as_f64), Some(1532402927.647951));
     let lidar = sample.get("lidar_points").unwrap();
     assert_eq!(lidar.get("num_pts_feats").and_then(Value::as_i64), Some(5));
-    assert_eq!(
-        str_of(lidar, "lidar_path"),
-        "n015-2018-07-24-11-22-45+0800__LIDAR_TOP__1532402927647951.pcd.bin"
-    );
+    assert_eq!(str_of(lidar, "lidar_path"), "n015-2018-07-24-11-22-45+0800__LIDAR_TOP__1532402927647951.pcd.bin");
     let ego = sample.get("ego2global").and_then(Value::as_list).unwrap();
     assert_eq!(ego.len(), 4);
     let last: Vec<f64> = ego[3].as_list().unwrap().iter().filter_map(Value::as_f64).collect();
@@ -155,18 +133,10 @@ fn nuscenes_info() {
     assert_eq!(third.get("bbox_label_3d"), Some(&Value::Int(0)));
     assert_eq!(third.get("num_lidar_pts"), Some(&Value::Int(5)));
     assert_eq!(third.get("bbox_3d_isvalid"), Some(&Value::Bool(true)));
-    let bbox: Vec<f64> = third
-        .get("bbox_3d")
-        .and_then(Value::as_list)
-        .unwrap()
-        .iter()
-        .filter_map(Value::as_f64)
-        .collect();
+    let bbox: Vec<f64> =
+        third.get("bbox_3d").and_then(Value::as_list).unwrap().iter().filter_map(Value::as_f64).collect();
     assert_eq!(bbox[3..6], [4.633, 2.011, 1.573]);
-    let cars = instances
-        .iter()
-        .filter(|i| i.get("bbox_label_3d") == Some(&Value::Int(0)))
-        .count();
+    let cars = instances.iter().filter(|i| i.get("bbox_label_3d") == Some(&Value::Int(0))).count();
     assert_eq!(cars, 8);
 
     let cams = sample.get("cam_instances").and_then(Value::as_dict).unwrap();

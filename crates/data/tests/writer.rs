@@ -19,7 +19,12 @@ fn frame(id: &str, seq: &str) -> Frame {
     let mut car = Object::new("Car", Box3d::new(10.0, 1.0, -9.0, 4.2, 1.9, 1.6, 0.25));
     car.num_points = Some(3);
     info.objects = vec![car, Object::new("Pedestrian", Box3d::new(5.0, -2.0, -9.5, 0.6, 0.7, 1.75, -1.0))];
-    let points = PointCloud::from_xyzi(&[[10.0, 1.0, -9.0, 0.5], [10.5, 1.2, -9.1, 0.25], [9.0, 0.5, -8.5, 1.0], [0.0, 0.0, 0.0, 0.0]]);
+    let points = PointCloud::from_xyzi(&[
+        [10.0, 1.0, -9.0, 0.5],
+        [10.5, 1.2, -9.1, 0.25],
+        [9.0, 0.5, -8.5, 1.0],
+        [0.0, 0.0, 0.0, 0.0],
+    ]);
     Frame { info, points }
 }
 
@@ -68,9 +73,10 @@ fn refuses_to_overwrite_unless_asked() {
 fn python_with_numpy() -> Option<String> {
     let venv = concat!(env!("CARGO_MANIFEST_DIR"), "/../../.venv/bin/python");
     let candidates = [std::env::var("PI3DET_PYTHON").ok(), Some(venv.to_string()), Some("python3".into())];
-    candidates.into_iter().flatten().find(|py| {
-        Command::new(py).args(["-c", "import numpy"]).output().map(|o| o.status.success()).unwrap_or(false)
-    })
+    candidates
+        .into_iter()
+        .flatten()
+        .find(|py| Command::new(py).args(["-c", "import numpy"]).output().map(|o| o.status.success()).unwrap_or(false))
 }
 
 #[test]

@@ -150,7 +150,11 @@ impl Box3d {
 pub fn wrap_angle(a: f64) -> f64 {
     let two_pi = std::f64::consts::TAU;
     let w = (a + std::f64::consts::PI).rem_euclid(two_pi) - std::f64::consts::PI;
-    if w >= std::f64::consts::PI { w - two_pi } else { w }
+    if w >= std::f64::consts::PI {
+        w - two_pi
+    } else {
+        w
+    }
 }
 
 impl From<[f64; 7]> for Box3d {

@@ -67,11 +67,7 @@ impl KittiCalib {
     /// LiDAR box → camera box (OpenPCDet `boxes3d_lidar_to_kitti_camera`).
     pub fn lidar_to_camera(&self, b: &Box3d) -> CameraBox {
         let location = self.lidar_to_rect([b.x, b.y, b.z - 0.5 * b.dz]);
-        CameraBox {
-            location,
-            dimensions_lhw: [b.dx, b.dz, b.dy],
-            rotation_y: -b.heading - std::f64::consts::FRAC_PI_2,
-        }
+        CameraBox { location, dimensions_lhw: [b.dx, b.dz, b.dy], rotation_y: -b.heading - std::f64::consts::FRAC_PI_2 }
     }
 
     /// The 2D image box `[x1, y1, x2, y2]` of a LiDAR box, clipped to the image when a size
@@ -83,7 +79,12 @@ impl KittiCalib {
             r = [r[0].min(u), r[1].min(v), r[2].max(u), r[3].max(v)];
         }
         if let Some([w, h]) = image_wh {
-            r = [r[0].clamp(0.0, w - 1.0), r[1].clamp(0.0, h - 1.0), r[2].clamp(0.0, w - 1.0), r[3].clamp(0.0, h - 1.0)];
+            r = [
+                r[0].clamp(0.0, w - 1.0),
+                r[1].clamp(0.0, h - 1.0),
+                r[2].clamp(0.0, w - 1.0),
+                r[3].clamp(0.0, h - 1.0),
+            ];
         }
         Some(r)
     }
@@ -114,16 +115,43 @@ mod tests {
     fn calib() -> KittiCalib {
         KittiCalib {
             p2: Matrix3x4::from_row_slice(&[
-                7.070493e2, 0.0, 6.040814e2, 4.575831e1, 0.0, 7.070493e2, 1.805066e2, -3.454157e-1, 0.0, 0.0, 1.0,
+                7.070493e2,
+                0.0,
+                6.040814e2,
+                4.575831e1,
+                0.0,
+                7.070493e2,
+                1.805066e2,
+                -3.454157e-1,
+                0.0,
+                0.0,
+                1.0,
                 4.981016e-3,
             ]),
             r0_rect: Matrix3::from_row_slice(&[
-                9.999128e-1, 1.009263e-2, -8.511932e-3, -1.012729e-2, 9.999406e-1, -4.037671e-3, 8.470675e-3,
-                4.123522e-3, 9.999556e-1,
+                9.999128e-1,
+                1.009263e-2,
+                -8.511932e-3,
+                -1.012729e-2,
+                9.999406e-1,
+                -4.037671e-3,
+                8.470675e-3,
+                4.123522e-3,
+                9.999556e-1,
             ]),
             tr_velo_to_cam: Matrix3x4::from_row_slice(&[
-                6.927964e-3, -9.999722e-1, -2.757829e-3, -2.457729e-2, -1.162982e-3, 2.749836e-3, -9.999955e-1,
-                -6.127237e-2, 9.999753e-1, 6.931141e-3, -1.143899e-3, -3.32586e-1,
+                6.927964e-3,
+                -9.999722e-1,
+                -2.757829e-3,
+                -2.457729e-2,
+                -1.162982e-3,
+                2.749836e-3,
+                -9.999955e-1,
+                -6.127237e-2,
+                9.999753e-1,
+                6.931141e-3,
+                -1.143899e-3,
+                -3.32586e-1,
             ]),
         }
     }

@@ -75,7 +75,10 @@ fn render(path: &str, summary: &Summary) -> String {
         }
     }
     if summary.total.dropped_points > 0 {
-        s += &format!("\nwarning: {} points with NaN or infinite coordinates were dropped\n", summary.total.dropped_points);
+        s += &format!(
+            "\nwarning: {} points with NaN or infinite coordinates were dropped\n",
+            summary.total.dropped_points
+        );
     }
     if !summary.per_box.is_empty() {
         s += "\n| frame | class | points inside | stored |\n|---|---|---:|---:|\n";

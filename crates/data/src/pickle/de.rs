@@ -9,14 +9,8 @@ use super::{PickleError, Value};
 
 /// Decodes a whole pickle (up to its STOP opcode).
 pub(crate) fn unpickle(data: &[u8]) -> Result<Value, PickleError> {
-    let mut vm = Unpickler {
-        data,
-        pos: 0,
-        op_start: 0,
-        stack: Vec::new(),
-        metastack: Vec::new(),
-        memo: HashMap::new(),
-    };
+    let mut vm =
+        Unpickler { data, pos: 0, op_start: 0, stack: Vec::new(), metastack: Vec::new(), memo: HashMap::new() };
     let root = vm.run()?;
     let stop = vm.op_start;
     // Free the memo first so that most containers are uniquely owned and get moved, not copied.
@@ -43,11 +37,7 @@ impl<'a> Unpickler<'a> {
     fn take(&mut self, n: usize) -> Result<&'a [u8], PickleError> {
         let available = self.data.len() - self.pos;
         if n > available {
-            return Err(PickleError::Truncated {
-                needed: n,
-                offset: self.pos,
-                available,
-            });
+            return Err(PickleError::Truncated { needed: n, offset: self.pos, available });
         }
         let out = &self.data[self.pos..self.pos + n];
         self.pos += n;
@@ -92,11 +82,7 @@ impl<'a> Unpickler<'a> {
                 self.pos += i + 1;
                 Ok(&rest[..i])
             }
-            None => Err(PickleError::Truncated {
-                needed: rest.len() + 1,
-                offset: self.pos,
-                available: rest.len(),
-            }),
+            None => Err(PickleError::Truncated { needed: rest.len() + 1, offset: self.pos, available: rest.len() }),
         }
     }
 
@@ -136,26 +122,17 @@ impl<'a> Unpickler<'a> {
 
     fn parse_int(&self, line: &[u8]) -> Result<i64, PickleError> {
         text::parse_int(line).map_err(|e| match e {
-            IntError::Overflow => PickleError::IntOverflow {
-                offset: self.op_start,
-            },
+            IntError::Overflow => PickleError::IntOverflow { offset: self.op_start },
             IntError::Invalid => self.err("invalid integer literal"),
         })
     }
 
     fn long(&self, bytes: &[u8]) -> Result<Item, PickleError> {
-        text::decode_long(bytes)
-            .map(Item::Int)
-            .ok_or(PickleError::IntOverflow {
-                offset: self.op_start,
-            })
+        text::decode_long(bytes).map(Item::Int).ok_or(PickleError::IntOverflow { offset: self.op_start })
     }
 
     fn memo_get(&self, key: u64) -> Result<Item, PickleError> {
-        self.memo
-            .get(&key)
-            .cloned()
-            .ok_or_else(|| self.err(format!("memo key {key} was never stored")))
+        self.memo.get(&key).cloned().ok_or_else(|| self.err(format!("memo key {key} was never stored")))
     }
 
     fn memo_put(&mut self, key: u64) -> Result<(), PickleError> {
@@ -165,16 +142,10 @@ impl<'a> Unpickler<'a> {
     }
 
     /// Runs the given closure on the container at the top of the stack.
-    fn with_top<R>(
-        &self,
-        f: impl FnOnce(&mut Obj) -> Result<R, String>,
-    ) -> Result<R, PickleError> {
+    fn with_top<R>(&self, f: impl FnOnce(&mut Obj) -> Result<R, String>) -> Result<R, PickleError> {
         match self.top()? {
             Item::Ref(shared) => {
-                let mut obj = shared
-                    .0
-                    .try_borrow_mut()
-                    .map_err(|_| self.err("object is already borrowed"))?;
+                let mut obj = shared.0.try_borrow_mut().map_err(|_| self.err("object is already borrowed"))?;
                 f(&mut obj).map_err(|m| self.err(m))
             }
             other => Err(self.err(format!("expected a container, found {}", other.kind()))),
@@ -182,41 +153,14 @@ impl<'a> Unpickler<'a> {
     }
 
     fn append(&mut self, items: Vec<Item>) -> Result<(), PickleError> {
-        self.with_top(|obj| {
-            // Instances of list subclasses get their items appended: keep them as a list.
-            if let Obj::Object { .. } = obj {
-                *obj = Obj::List(Vec::new());
-            }
-            match obj {
-                Obj::List(list) => {
-                    list.extend(items);
-                    Ok(())
-                }
-                other => Err(format!("cannot append to {}", other.kind())),
-            }
-        })
+        self.with_top(|obj| obj.append(items))
     }
 
     fn set_items(&mut self, items: Vec<Item>) -> Result<(), PickleError> {
         if !items.len().is_multiple_of(2) {
             return Err(self.err("odd number of items for a dict"));
         }
-        self.with_top(|obj| {
-            // Instances of dict subclasses (OrderedDict, EasyDict...) decode as plain dicts.
-            if let Obj::Object { .. } = obj {
-                *obj = Obj::Dict(Entries::default());
-            }
-            match obj {
-                Obj::Dict(entries) => {
-                    let mut it = items.into_iter();
-                    while let (Some(k), Some(v)) = (it.next(), it.next()) {
-                        entries.insert(k, v);
-                    }
-                    Ok(())
-                }
-                other => Err(format!("cannot set items on {}", other.kind())),
-            }
-        })
+        self.with_top(|obj| obj.set_items(items))
     }
 
     fn str_or_bytes(bytes: &[u8]) -> Item {
@@ -337,8 +281,8 @@ impl<'a> Unpickler<'a> {
                 }
                 op::UNICODE => {
                     let line = self.line()?;
-                    let s = text::raw_unicode_escape(line)
-                        .ok_or_else(|| self.err("invalid raw-unicode-escape string"))?;
+                    let s =
+                        text::raw_unicode_escape(line).ok_or_else(|| self.err("invalid raw-unicode-escape string"))?;
                     self.push(Item::str(&s));
                 }
                 op::BINUNICODE => {
@@ -420,9 +364,7 @@ impl<'a> Unpickler<'a> {
                 }
                 op::FROZENSET => {
                     let mut set = Entries::default();
-                    self.pop_mark()?
-                        .into_iter()
-                        .for_each(|k| set.insert(k, Item::None));
+                    self.pop_mark()?.into_iter().for_each(|k| set.insert(k, Item::None));
                     self.push(Item::new(Obj::Set(set)));
                 }
                 op::GET => {

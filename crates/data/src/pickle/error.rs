@@ -10,25 +10,13 @@ use std::path::PathBuf;
 pub enum PickleError {
     /// An opcode this reader does not implement (or an unknown byte).
     #[error("unsupported pickle opcode 0x{opcode:02x} ({name}) at byte {offset}")]
-    UnsupportedOpcode {
-        opcode: u8,
-        name: &'static str,
-        offset: usize,
-    },
+    UnsupportedOpcode { opcode: u8, name: &'static str, offset: usize },
     /// The stream ended in the middle of an opcode or before STOP.
     #[error("truncated pickle: needed {needed} bytes at byte {offset}, only {available} left")]
-    Truncated {
-        needed: usize,
-        offset: usize,
-        available: usize,
-    },
+    Truncated { needed: usize, offset: usize, available: usize },
     /// A numpy dtype that cannot be represented by [`super::ArrayData`].
     #[error("unsupported numpy dtype '{dtype}' at byte {offset}: {reason}")]
-    UnsupportedDtype {
-        dtype: String,
-        reason: String,
-        offset: usize,
-    },
+    UnsupportedDtype { dtype: String, reason: String, offset: usize },
     /// A Python int that does not fit in `i64`.
     #[error("integer at byte {offset} does not fit in a 64-bit signed integer")]
     IntOverflow { offset: usize },
@@ -40,16 +28,10 @@ pub enum PickleError {
     Unpicklable(String),
     /// Reading or decoding a file failed; the message includes the inner error.
     #[error("{}: {error}", path.display())]
-    InFile {
-        path: PathBuf,
-        error: Box<PickleError>,
-    },
+    InFile { path: PathBuf, error: Box<PickleError> },
     /// An I/O error on a file.
     #[error("{}: {error}", path.display())]
-    Io {
-        path: PathBuf,
-        error: std::io::Error,
-    },
+    Io { path: PathBuf, error: std::io::Error },
     /// [`super::to_path`] was asked to replace a file without `overwrite = true`.
     #[error("refusing to overwrite existing file {} (pass overwrite = true to replace it)", path.display())]
     AlreadyExists { path: PathBuf },
@@ -70,9 +52,6 @@ impl PickleError {
     }
 
     pub(crate) fn invalid(offset: usize, message: impl Into<String>) -> Self {
-        Self::Invalid {
-            offset,
-            message: message.into(),
-        }
+        Self::Invalid { offset, message: message.into() }
     }
 }

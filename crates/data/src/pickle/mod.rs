@@ -47,14 +47,8 @@ pub fn from_slice(bytes: &[u8]) -> Result<Value, PickleError> {
 /// Reads and decodes a pickle file; errors name the path.
 pub fn from_path(path: impl AsRef<Path>) -> Result<Value, PickleError> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|error| PickleError::Io {
-        path: path.to_owned(),
-        error,
-    })?;
-    from_slice(&bytes).map_err(|error| PickleError::InFile {
-        path: path.to_owned(),
-        error: Box::new(error),
-    })
+    let bytes = std::fs::read(path).map_err(|error| PickleError::Io { path: path.to_owned(), error })?;
+    from_slice(&bytes).map_err(|error| PickleError::InFile { path: path.to_owned(), error: Box::new(error) })
 }
 
 /// Encodes a value as a protocol-4 pickle.
@@ -68,21 +62,13 @@ pub fn to_vec(value: &Value) -> Result<Vec<u8>, PickleError> {
 pub fn to_path(path: impl AsRef<Path>, value: &Value, overwrite: bool) -> Result<(), PickleError> {
     let path = path.as_ref();
     let bytes = to_vec(value)?;
-    let io_err = |error| PickleError::Io {
-        path: path.to_owned(),
-        error,
-    };
+    let io_err = |error| PickleError::Io { path: path.to_owned(), error };
     if !overwrite && path.exists() {
-        return Err(PickleError::AlreadyExists {
-            path: path.to_owned(),
-        });
+        return Err(PickleError::AlreadyExists { path: path.to_owned() });
     }
-    let name = path.file_name().ok_or_else(|| {
-        io_err(std::io::Error::new(
-            std::io::ErrorKind::InvalidInput,
-            "not a file path",
-        ))
-    })?;
+    let name = path
+        .file_name()
+        .ok_or_else(|| io_err(std::io::Error::new(std::io::ErrorKind::InvalidInput, "not a file path")))?;
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
@@ -106,9 +92,7 @@ pub fn to_path(path: impl AsRef<Path>, value: &Value, overwrite: bool) -> Result
     match result {
         Ok(()) => Ok(()),
         Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-            Err(PickleError::AlreadyExists {
-                path: path.to_owned(),
-            })
+            Err(PickleError::AlreadyExists { path: path.to_owned() })
         }
         Err(e) => Err(io_err(e)),
     }
@@ -125,10 +109,7 @@ fn temp_file_path(dir: &Path, name: &std::ffi::OsStr) -> std::path::PathBuf {
 }
 
 fn write_new(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let mut file = std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(path)?;
+    let mut file = std::fs::OpenOptions::new().write(true).create_new(true).open(path)?;
     file.write_all(bytes)?;
     file.sync_all()
 }

@@ -45,12 +45,7 @@ impl Kind {
 
 impl Dtype {
     pub fn new(descr: String) -> Self {
-        Self {
-            descr,
-            order: '|',
-            elsize: None,
-            unsupported: None,
-        }
+        Self { descr, order: '|', elsize: None, unsupported: None }
     }
 
     /// numpy's spelling, e.g. `<f8`, `|b1`, `>U3`.
@@ -59,11 +54,7 @@ impl Dtype {
     }
 
     fn unsupported(&self, offset: usize, reason: impl Into<String>) -> PickleError {
-        PickleError::UnsupportedDtype {
-            dtype: self.display(),
-            reason: reason.into(),
-            offset,
-        }
+        PickleError::UnsupportedDtype { dtype: self.display(), reason: reason.into(), offset }
     }
 
     fn kind(&self, offset: usize) -> Result<Kind, PickleError> {
@@ -73,11 +64,7 @@ impl Dtype {
         let mut chars = self.descr.chars();
         let letter = chars.next().unwrap_or(' ');
         let digits = chars.as_str();
-        let size: Option<usize> = if digits.is_empty() {
-            None
-        } else {
-            digits.parse().ok()
-        };
+        let size: Option<usize> = if digits.is_empty() { None } else { digits.parse().ok() };
         let fixed = |n: usize| size == Some(n);
         let kind = match letter {
             'b' if fixed(1) => Kind::Bool,
@@ -102,9 +89,7 @@ impl Dtype {
         };
         // Real item sizes are small; this also keeps `itemsize` from overflowing.
         match kind {
-            Kind::Str(n) | Kind::Bytes(n) if n > 1 << 32 => {
-                Err(self.unsupported(offset, "item size too large"))
-            }
+            Kind::Str(n) | Kind::Bytes(n) if n > 1 << 32 => Err(self.unsupported(offset, "item size too large")),
             _ => Ok(kind),
         }
     }
@@ -132,10 +117,7 @@ pub(crate) fn set_dtype_state(dtype: &mut Dtype, state: &[StateField]) {
         dtype.unsupported = Some("sub-array dtypes are not supported".into());
     }
     if let Some(StateField::Names(names)) = state.get(3) {
-        dtype.unsupported = Some(format!(
-            "structured dtypes (fields {}) are not supported",
-            names.join(", ")
-        ));
+        dtype.unsupported = Some(format!("structured dtypes (fields {}) are not supported", names.join(", ")));
     } else if matches!(state.get(3), Some(f) if *f != StateField::None) {
         dtype.unsupported = Some("structured dtypes are not supported".into());
     }
@@ -169,13 +151,9 @@ pub(crate) fn decode_buffer(
 ) -> Result<NdArray, PickleError> {
     let kind = dtype.kind(offset)?;
     if kind == Kind::Object {
-        return Err(PickleError::invalid(
-            offset,
-            "object array without a list of elements",
-        ));
+        return Err(PickleError::invalid(offset, "object array without a list of elements"));
     }
-    let n = product(shape)
-        .ok_or_else(|| PickleError::invalid(offset, format!("array shape {shape:?} overflows")))?;
+    let n = product(shape).ok_or_else(|| PickleError::invalid(offset, format!("array shape {shape:?} overflows")))?;
     let expected = n.checked_mul(kind.itemsize());
     // Zero-width items (U0/S0) would let a tiny pickle claim a huge element count.
     if expected != Some(data.len()) || (kind.itemsize() == 0 && n > 1 << 20) {
@@ -234,24 +212,11 @@ pub(crate) fn decode_buffer(
         ),
         Kind::Object => unreachable!("handled above"),
     };
-    let values = if fortran && shape.len() > 1 {
-        fortran_to_c(values, shape)
-    } else {
-        values
-    };
-    Ok(NdArray {
-        shape: shape.to_vec(),
-        data: values,
-    })
+    let values = if fortran && shape.len() > 1 { fortran_to_c(values, shape) } else { values };
+    Ok(NdArray { shape: shape.to_vec(), data: values })
 }
 
-fn decode_ucs4(
-    data: &[u8],
-    n: usize,
-    chars: usize,
-    be: bool,
-    offset: usize,
-) -> Result<Vec<String>, PickleError> {
+fn decode_ucs4(data: &[u8], n: usize, chars: usize, be: bool, offset: usize) -> Result<Vec<String>, PickleError> {
     (0..n)
         .map(|i| {
             let item = &data[i * chars * 4..(i + 1) * chars * 4];
@@ -259,16 +224,9 @@ fn decode_ucs4(
                 .chunks_exact(4)
                 .map(|c| {
                     let b = [c[0], c[1], c[2], c[3]];
-                    let code = if be {
-                        u32::from_be_bytes(b)
-                    } else {
-                        u32::from_le_bytes(b)
-                    };
+                    let code = if be { u32::from_be_bytes(b) } else { u32::from_le_bytes(b) };
                     char::from_u32(code).ok_or_else(|| {
-                        PickleError::invalid(
-                            offset,
-                            format!("invalid code point {code:#x} in unicode array"),
-                        )
+                        PickleError::invalid(offset, format!("invalid code point {code:#x} in unicode array"))
                     })
                 })
                 .collect::<Result<_, _>>()?;
@@ -356,9 +314,7 @@ pub(crate) fn decode_scalar(dtype: &Dtype, data: &[u8], offset: usize) -> Result
         ArrayData::F64(v) => Value::Float(v[0]),
         ArrayData::Str(mut v) => Value::Str(v.swap_remove(0)),
         ArrayData::Bytes(mut v) => Value::Bytes(v.swap_remove(0)),
-        ArrayData::U64(v) => {
-            Value::Int(i64::try_from(v[0]).map_err(|_| PickleError::IntOverflow { offset })?)
-        }
+        ArrayData::U64(v) => Value::Int(i64::try_from(v[0]).map_err(|_| PickleError::IntOverflow { offset })?),
         other => NdArray::from_vec(other)
             .to_i64_vec()
             .and_then(|v| v.first().copied())

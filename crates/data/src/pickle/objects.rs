@@ -14,7 +14,8 @@ use super::{ArrayData, NdArray, PickleError, Value};
 pub(crate) const MAX_DEPTH: usize = 1000;
 
 /// A stack / memo slot. Immutable scalars are stored inline, everything else behind `Shared`.
-#[derive(Debug, Clone)]
+// No Debug: a recursive value would print forever.
+#[derive(Clone)]
 pub(crate) enum Item {
     None,
     Bool(bool),
@@ -71,7 +72,7 @@ impl Item {
 
 /// A shared, mutable container whose `Drop` is iterative, so that deeply nested input
 /// cannot overflow the stack while being freed.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub(crate) struct Shared(pub Rc<RefCell<Obj>>);
 
 impl Drop for Shared {
@@ -94,7 +95,7 @@ impl Drop for Shared {
     }
 }
 
-#[derive(Debug, Clone, Default)]
+#[derive(Clone, Default)]
 pub(crate) enum Obj {
     /// What is left after the contents were moved out.
     #[default]
@@ -135,6 +136,39 @@ impl Obj {
         }
     }
 
+    /// APPEND / APPENDS.
+    pub fn append(&mut self, items: Vec<Item>) -> Result<(), String> {
+        // Instances of list subclasses get their items appended: keep them as a list.
+        if let Obj::Object { .. } = self {
+            *self = Obj::List(Vec::new());
+        }
+        match self {
+            Obj::List(list) => {
+                list.extend(items);
+                Ok(())
+            }
+            other => Err(format!("cannot append to {}", other.kind())),
+        }
+    }
+
+    /// SETITEM / SETITEMS with alternating keys and values.
+    pub fn set_items(&mut self, items: Vec<Item>) -> Result<(), String> {
+        // Instances of dict subclasses (OrderedDict, EasyDict...) decode as plain dicts.
+        if let Obj::Object { .. } = self {
+            *self = Obj::Dict(Entries::default());
+        }
+        match self {
+            Obj::Dict(entries) => {
+                let mut it = items.into_iter();
+                while let (Some(k), Some(v)) = (it.next(), it.next()) {
+                    entries.insert(k, v);
+                }
+                Ok(())
+            }
+            other => Err(format!("cannot set items on {}", other.kind())),
+        }
+    }
+
     fn take_children(&mut self, out: &mut Vec<Shared>) {
         let mut push = |items: Vec<Item>| {
             out.extend(items.into_iter().filter_map(|i| match i {
@@ -143,9 +177,7 @@ impl Obj {
             }))
         };
         match self {
-            Obj::List(v) | Obj::Tuple(v) | Obj::ObjectArray { items: v, .. } => {
-                push(std::mem::take(v))
-            }
+            Obj::List(v) | Obj::Tuple(v) | Obj::ObjectArray { items: v, .. } => push(std::mem::take(v)),
             Obj::Dict(e) | Obj::Set(e) => {
                 e.index.clear();
                 for (k, v) in std::mem::take(&mut e.pairs) {
@@ -188,7 +220,7 @@ impl Key {
 }
 
 /// Insertion-ordered dict entries with Python's replace-on-duplicate-key semantics.
-#[derive(Debug, Clone, Default)]
+#[derive(Clone, Default)]
 pub(crate) struct Entries {
     pub pairs: Vec<(Item, Item)>,
     index: HashMap<Key, usize>,
@@ -282,9 +314,7 @@ impl Convert {
             Obj::Empty => Value::None,
             Obj::List(v) => Value::List(self.items(v, depth)?),
             Obj::Tuple(v) => Value::Tuple(self.items(v, depth)?),
-            Obj::Set(e) => {
-                Value::Set(self.items(e.pairs.into_iter().map(|(k, _)| k).collect(), depth)?)
-            }
+            Obj::Set(e) => Value::Set(self.items(e.pairs.into_iter().map(|(k, _)| k).collect(), depth)?),
             Obj::Dict(e) => Value::Dict(
                 e.pairs
                     .into_iter()
@@ -300,21 +330,14 @@ impl Convert {
                     None => None,
                 },
             },
-            Obj::Dtype(d) => Value::Object {
-                class: "numpy.dtype".into(),
-                args: vec![Value::Str(d.display())],
-                state: None,
-            },
-            Obj::PendingArray => Value::Object {
-                class: "numpy.ndarray".into(),
-                args: Vec::new(),
-                state: None,
-            },
+            Obj::Dtype(d) => {
+                Value::Object { class: "numpy.dtype".into(), args: vec![Value::Str(d.display())], state: None }
+            }
+            Obj::PendingArray => Value::Object { class: "numpy.ndarray".into(), args: Vec::new(), state: None },
             Obj::Array(a) => Value::Array(a),
-            Obj::ObjectArray { shape, items } => Value::Array(NdArray {
-                shape,
-                data: ArrayData::Object(self.items(items, depth)?),
-            }),
+            Obj::ObjectArray { shape, items } => {
+                Value::Array(NdArray { shape, data: ArrayData::Object(self.items(items, depth)?) })
+            }
         })
     }
 }

@@ -96,8 +96,7 @@ impl Unpickler<'_> {
     }
 
     fn dtype_arg(&self, item: Option<&Item>) -> Result<Dtype, PickleError> {
-        item.and_then(dtype)
-            .ok_or_else(|| self.err("expected a numpy.dtype argument"))
+        item.and_then(dtype).ok_or_else(|| self.err("expected a numpy.dtype argument"))
     }
 
     /// `_codecs.encode(text, encoding)`, which protocol 2 uses for every `bytes` object.
@@ -115,15 +114,8 @@ impl Unpickler<'_> {
 
     /// Calls a global with arguments (REDUCE, INST, OBJ).
     pub(crate) fn reduce(&self, callable: &Item, args: Vec<Item>) -> Result<Item, PickleError> {
-        let name = global_name(callable)
-            .ok_or_else(|| self.err(format!("cannot call {}", callable.kind())))?;
-        let generic = |args| {
-            Ok(Item::new(Obj::Object {
-                class: name.clone(),
-                args,
-                state: None,
-            }))
-        };
+        let name = global_name(callable).ok_or_else(|| self.err(format!("cannot call {}", callable.kind())))?;
+        let generic = |args| Ok(Item::new(Obj::Object { class: name.clone(), args, state: None }));
         match name.as_str() {
             // Subclasses (np.matrix, np.memmap) share ndarray's state layout.
             "numpy.core.multiarray._reconstruct" | "numpy._core.multiarray._reconstruct" => {
@@ -140,11 +132,7 @@ impl Unpickler<'_> {
                     return Ok(data.clone());
                 }
                 let bytes = raw_bytes(data).ok_or_else(|| self.err("scalar data is not bytes"))?;
-                Ok(Item::from_scalar(numpy::decode_scalar(
-                    &dtype,
-                    &bytes,
-                    self.op_start,
-                )?))
+                Ok(Item::from_scalar(numpy::decode_scalar(&dtype, &bytes, self.op_start)?))
             }
             // Protocol 5 pickles contiguous arrays as _frombuffer(buffer, dtype, shape, order).
             "numpy.core.numeric._frombuffer" | "numpy._core.numeric._frombuffer" => {
@@ -231,13 +219,8 @@ impl Unpickler<'_> {
 
     /// `cls.__new__(cls, *args)` (NEWOBJ, NEWOBJ_EX).
     pub(crate) fn new_object(&self, class: &Item, args: Vec<Item>) -> Result<Item, PickleError> {
-        let class =
-            global_name(class).ok_or_else(|| self.err(format!("{} is not a class", class.kind())))?;
-        Ok(Item::new(Obj::Object {
-            class,
-            args,
-            state: None,
-        }))
+        let class = global_name(class).ok_or_else(|| self.err(format!("{} is not a class", class.kind())))?;
+        Ok(Item::new(Obj::Object { class, args, state: None }))
     }
 
     /// BUILD: `target.__setstate__(state)`.
@@ -255,8 +238,7 @@ impl Unpickler<'_> {
         let new_obj = match borrowed.as_deref() {
             Ok(Obj::Dtype(d)) => {
                 let mut d = d.clone();
-                let fields: Vec<StateField> =
-                    self.tuple_items(&state)?.iter().map(state_field).collect();
+                let fields: Vec<StateField> = self.tuple_items(&state)?.iter().map(state_field).collect();
                 numpy::set_dtype_state(&mut d, &fields);
                 Some(Obj::Dtype(d))
             }
@@ -267,10 +249,7 @@ impl Unpickler<'_> {
             _ => return Err(self.err(format!("cannot BUILD {current}"))),
         };
         drop(borrowed);
-        let mut obj = shared
-            .0
-            .try_borrow_mut()
-            .map_err(|_| self.err("object is already borrowed"))?;
+        let mut obj = shared.0.try_borrow_mut().map_err(|_| self.err("object is already borrowed"))?;
         match (new_obj, &mut *obj) {
             (Some(new), _) => *obj = new,
             (None, Obj::Object { state: slot, .. }) => *slot = Some(state),
@@ -297,10 +276,7 @@ impl Unpickler<'_> {
             let items = sequence(data).ok_or_else(|| self.err("object array data is not a list"))?;
             let n = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d));
             if n != Some(items.len()) {
-                return Err(self.err(format!(
-                    "object array of shape {shape:?} has {} elements",
-                    items.len()
-                )));
+                return Err(self.err(format!("object array of shape {shape:?} has {} elements", items.len())));
             }
             return Ok(Obj::ObjectArray { shape, items });
         }

@@ -16,10 +16,7 @@ const BATCH: usize = 1000;
 const RECONSTRUCT: &str = "numpy.core.multiarray._reconstruct";
 
 pub(crate) fn pickle(value: &Value) -> Result<Vec<u8>, PickleError> {
-    let mut p = Pickler {
-        out: vec![op::PROTO, 4],
-        memo: HashMap::new(),
-    };
+    let mut p = Pickler { out: vec![op::PROTO, 4], memo: HashMap::new() };
     p.value(value, 0)?;
     p.out.push(op::STOP);
     Ok(p.out)
@@ -111,9 +108,7 @@ impl Pickler {
         let (module, qualname) = name
             .rsplit_once('.')
             .filter(|(m, q)| !m.is_empty() && !q.is_empty())
-            .ok_or_else(|| {
-                PickleError::Unpicklable(format!("global '{name}' is not 'module.name'"))
-            })?;
+            .ok_or_else(|| PickleError::Unpicklable(format!("global '{name}' is not 'module.name'")))?;
         let key = format!("global {name}");
         if let Some(&slot) = self.memo.get(&key) {
             self.get(slot);
@@ -168,9 +163,7 @@ impl Pickler {
 
     fn value(&mut self, value: &Value, depth: usize) -> Result<(), PickleError> {
         if depth > MAX_DEPTH {
-            return Err(PickleError::Unpicklable(format!(
-                "value nested deeper than {MAX_DEPTH} levels"
-            )));
+            return Err(PickleError::Unpicklable(format!("value nested deeper than {MAX_DEPTH} levels")));
         }
         match value {
             Value::None => self.op(op::NONE),
@@ -261,10 +254,7 @@ impl Pickler {
 
     /// `numpy.dtype(descr, False, True)` + BUILD `(3, order, None, None, None, elsize, align, flags)`.
     fn dtype(&mut self, enc: &Encoded) -> Result<(), PickleError> {
-        let key = format!(
-            "dtype {}{} {} {} {}",
-            enc.order, enc.descr, enc.elsize, enc.alignment, enc.flags
-        );
+        let key = format!("dtype {}{} {} {} {}", enc.order, enc.descr, enc.elsize, enc.alignment, enc.flags);
         // The memo holds the dtype after its BUILD (same object), as in numpy's own pickles.
         if let Some(&slot) = self.memo.get(&key) {
             self.get(slot);

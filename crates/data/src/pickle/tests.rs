@@ -41,10 +41,7 @@ fn protocol_0_text_opcodes() {
     let p0 = b"(dp0\nVa\np1\n(lp2\nI1\naF2.5\naVx\\u000a\\u20ac\\u005c\np3\nac_codecs\nencode\np4\n(V\\u0000\xff\np5\nVlatin1\np6\ntp7\nRp8\naNaI01\naI00\na(I1\ntp9\naL1000000000000L\naI-5\naL-1099511627776L\nasVb\np10\nc__builtin__\nset\np11\n((lp12\nI3\natp13\nRp14\nsVc\np15\nc__builtin__\nfrozenset\np16\n((lp17\ntp18\nRp19\ns.";
     assert_eq!(from_slice(p0).unwrap(), mixed());
     let quotes = b"(dp0\nV\xe9\np1\nVcaf\xe9\np2\nsVs\np3\nVit's \"q\"\np4\ns.";
-    assert_eq!(
-        from_slice(quotes).unwrap(),
-        Value::dict([("é", s("café")), ("s", s("it's \"q\""))])
-    );
+    assert_eq!(from_slice(quotes).unwrap(), Value::dict([("é", s("café")), ("s", s("it's \"q\""))]));
     // Python 2 str: text when it is UTF-8, bytes otherwise.
     assert_eq!(from_slice(b"S'a\\nb'\n.").unwrap(), s("a\nb"));
     assert_eq!(from_slice(b"S'\\xff'\n.").unwrap(), Value::Bytes(vec![0xff]));
@@ -61,10 +58,7 @@ fn memo_sees_later_mutation() {
     // L = []; memo[0] = L; t = (L,); memo[1] = t; L.append(7); result (L, memo[1])
     let p = b"\x80\x02]q\x00h\x00\x85q\x010K\x07ah\x01\x86.";
     let seven = list(vec![Value::Int(7)]);
-    assert_eq!(
-        from_slice(p).unwrap(),
-        Value::Tuple(vec![seven.clone(), Value::Tuple(vec![seven])])
-    );
+    assert_eq!(from_slice(p).unwrap(), Value::Tuple(vec![seven.clone(), Value::Tuple(vec![seven])]));
     // An object put in a list, then BUILD through a memo reference.
     let p = b"\x80\x02]q\x00cm\nC\n)\x81q\x01ah\x01}X\x01\x00\x00\x00kK\x01sb0.";
     let expected = list(vec![Value::Object {
@@ -78,10 +72,7 @@ fn memo_sees_later_mutation() {
 #[test]
 fn duplicate_dict_keys_keep_the_last_value() {
     let p = b"\x80\x02}(K\x01K\x02K\x01K\x03\x88K\x04u.";
-    assert_eq!(
-        from_slice(p).unwrap(),
-        Value::Dict(vec![(Value::Int(1), Value::Int(4))])
-    );
+    assert_eq!(from_slice(p).unwrap(), Value::Dict(vec![(Value::Int(1), Value::Int(4))]));
 }
 
 #[test]
@@ -105,10 +96,7 @@ fn unsupported_opcodes_name_the_byte_and_offset() {
 #[test]
 fn truncated_input_reports_offset() {
     let err = from_slice(b"\x80\x04\x8c\x05ab").unwrap_err();
-    assert_eq!(
-        err.to_string(),
-        "truncated pickle: needed 5 bytes at byte 4, only 2 left"
-    );
+    assert_eq!(err.to_string(), "truncated pickle: needed 5 bytes at byte 4, only 2 left");
     // No STOP.
     let err = from_slice(b"\x80\x04K\x01").unwrap_err();
     assert!(matches!(err, PickleError::Truncated { offset: 4, .. }), "{err:?}");
@@ -138,10 +126,7 @@ fn unsupported_dtypes_are_named() {
     let err = from_slice(complex).unwrap_err();
     assert_eq!(
         err.to_string(),
-        format!(
-            "unsupported numpy dtype '<c8' at byte {}: complex numbers are not supported",
-            complex.len() - 2
-        )
+        format!("unsupported numpy dtype '<c8' at byte {}: complex numbers are not supported", complex.len() - 2)
     );
     // np.zeros(1, dtype=[('x', '<f4'), ('y', '<i4')]), protocol 4.
     let record = b"\x80\x04\x95\xed\x00\x00\x00\x00\x00\x00\x00\x8c\x16numpy._core.multiarray\x94\x8c\x0c_reconstruct\x94\x93\x94\x8c\x05numpy\x94\x8c\x07ndarray\x94\x93\x94K\x00\x85\x94C\x01b\x94\x87\x94R\x94(K\x01K\x01\x85\x94h\x03\x8c\x05dtype\x94\x93\x94\x8c\x02V8\x94\x89\x88\x87\x94R\x94(K\x03\x8c\x01|\x94N\x8c\x01x\x94\x8c\x01y\x94\x86\x94}\x94(h\x11h\x0c\x8c\x02f4\x94\x89\x88\x87\x94R\x94(K\x03\x8c\x01<\x94NNNJ\xff\xff\xff\xffJ\xff\xff\xff\xffK\x00t\x94bK\x00\x86\x94h\x12h\x0c\x8c\x02i4\x94\x89\x88\x87\x94R\x94(K\x03h\x18NNNJ\xff\xff\xff\xffJ\xff\xff\xff\xffK\x00t\x94bK\x04\x86\x94uK\x08K\x01K\x10t\x94b\x89C\x08\x00\x00\x00\x00\x00\x00\x00\x00\x94t\x94b.";
@@ -230,11 +215,13 @@ fn sample() -> Value {
         ("flags", Value::Tuple(vec![true.into(), false.into()])),
         (
             "ints",
-            list([0i64, 255, 256, 65535, 65536, -1, -129, i32::MAX.into(), i32::MIN.into()]
-                .into_iter()
-                .chain([1 << 31, -(1 << 31) - 1, 1 << 40, i64::MAX, i64::MIN, -256, 255 << 8])
-                .map(Value::Int)
-                .collect()),
+            list(
+                [0i64, 255, 256, 65535, 65536, -1, -129, i32::MAX.into(), i32::MIN.into()]
+                    .into_iter()
+                    .chain([1 << 31, -(1 << 31) - 1, 1 << 40, i64::MAX, i64::MIN, -256, 255 << 8])
+                    .map(Value::Int)
+                    .collect(),
+            ),
         ),
         ("floats", list(vec![1.5.into(), f64::INFINITY.into(), (-0.0).into()])),
         ("text", s("héllo 😀")),
@@ -248,13 +235,16 @@ fn sample() -> Value {
         ("i4", f(vec![], vec![42i32].into())),
         ("u1", f(vec![2, 2], vec![0u8, 1, 254, 255].into())),
         ("b1", f(vec![3], vec![true, false, true].into())),
-        ("i2_u2_u4_u8_i1", list(vec![
-            f(vec![1], vec![-2i16].into()),
-            f(vec![1], vec![2u16].into()),
-            f(vec![1], vec![3u32].into()),
-            f(vec![1], vec![u64::MAX].into()),
-            f(vec![1], vec![-4i8].into()),
-        ])),
+        (
+            "i2_u2_u4_u8_i1",
+            list(vec![
+                f(vec![1], vec![-2i16].into()),
+                f(vec![1], vec![2u16].into()),
+                f(vec![1], vec![3u32].into()),
+                f(vec![1], vec![u64::MAX].into()),
+                f(vec![1], vec![-4i8].into()),
+            ]),
+        ),
         ("names", f(vec![3], vec!["Car".to_string(), "".into(), "Pedestrian€".into()].into())),
         ("raw", f(vec![2], vec![b"ab".to_vec(), b"c".to_vec()].into())),
         ("objects", f(vec![2], vec![Value::Int(1), s("x")].into())),
@@ -277,11 +267,7 @@ fn round_trip() {
     let bytes = to_vec(&v).unwrap();
     assert_eq!(from_slice(&bytes).unwrap(), v);
     // Arrays reuse memoized globals and dtypes.
-    let many = list(
-        (0..300)
-            .map(|i| Value::Array(NdArray::from_vec(vec![i as f32; 2])))
-            .collect(),
-    );
+    let many = list((0..300).map(|i| Value::Array(NdArray::from_vec(vec![i as f32; 2]))).collect());
     let bytes = to_vec(&many).unwrap();
     assert!(bytes.len() < 300 * 40, "{} bytes", bytes.len());
     assert_eq!(from_slice(&bytes).unwrap(), many);
@@ -290,9 +276,7 @@ fn round_trip() {
 #[test]
 fn garbage_never_panics() {
     // The sample without its long members, to keep the number of parses reasonable.
-    let Value::Dict(mut pairs) = sample() else {
-        unreachable!()
-    };
+    let Value::Dict(mut pairs) = sample() else { unreachable!() };
     pairs.retain(|(k, _)| !matches!(k.as_str(), Some("many" | "long_text" | "bytes")));
     let bytes = to_vec(&Value::Dict(pairs)).unwrap();
     for end in 0..bytes.len() {
@@ -324,10 +308,7 @@ fn garbage_never_panics() {
 fn writer_errors() {
     let err = to_vec(&Value::Global("nodots".into())).unwrap_err();
     assert!(err.to_string().contains("nodots"), "{err}");
-    let bad = Value::Array(NdArray {
-        shape: vec![2, 2],
-        data: ArrayData::F32(vec![1.0]),
-    });
+    let bad = Value::Array(NdArray { shape: vec![2, 2], data: ArrayData::F32(vec![1.0]) });
     assert!(matches!(to_vec(&bad), Err(PickleError::Unpicklable(_))));
     assert!(NdArray::new(vec![3], vec![1.0f64]).is_err());
 }

@@ -41,9 +41,7 @@ pub(crate) fn decode_long(bytes: &[u8]) -> Option<i64> {
 
 /// The quoted, backslash-escaped argument of STRING (Python's `codecs.escape_decode`).
 pub(crate) fn unescape_string(line: &[u8]) -> Option<Vec<u8>> {
-    let quoted = line.len() >= 2
-        && line[0] == line[line.len() - 1]
-        && (line[0] == b'\'' || line[0] == b'"');
+    let quoted = line.len() >= 2 && line[0] == line[line.len() - 1] && (line[0] == b'\'' || line[0] == b'"');
     if !quoted {
         return None;
     }

@@ -155,10 +155,7 @@ impl NdArray {
     /// A 1-D array.
     pub fn from_vec(data: impl Into<ArrayData>) -> Self {
         let data = data.into();
-        Self {
-            shape: vec![data.len()],
-            data,
-        }
+        Self { shape: vec![data.len()], data }
     }
 
     pub fn shape(&self) -> &[usize] {
@@ -253,10 +250,7 @@ impl NdArray {
 impl Value {
     /// Looks up a string key in a dict; `None` for other values or a missing key.
     pub fn get(&self, key: &str) -> Option<&Value> {
-        self.as_dict()?
-            .iter()
-            .find(|(k, _)| k.as_str() == Some(key))
-            .map(|(_, v)| v)
+        self.as_dict()?.iter().find(|(k, _)| k.as_str() == Some(key)).map(|(_, v)| v)
     }
 
     pub fn as_str(&self) -> Option<&str> {
@@ -346,12 +340,7 @@ impl Value {
 
     /// A dict with string keys, in the given order.
     pub fn dict<K: Into<String>>(pairs: impl IntoIterator<Item = (K, Value)>) -> Value {
-        Value::Dict(
-            pairs
-                .into_iter()
-                .map(|(k, v)| (Value::Str(k.into()), v))
-                .collect(),
-        )
+        Value::Dict(pairs.into_iter().map(|(k, v)| (Value::Str(k.into()), v)).collect())
     }
 }
 
