@@ -67,6 +67,8 @@ impl Record<'_> {
     /// A 1-D list of strings from a numpy string/object array or a list.
     pub fn strings(&self, x: &Value, key: &str) -> Result<Vec<String>, DataError> {
         match x {
+            // OpenPCDet writes empty frames' names as `np.zeros(0)` (a float array).
+            Value::Array(a) if a.is_empty() => Ok(Vec::new()),
             Value::Array(a) => {
                 a.to_strings().ok_or_else(|| self.err(format!("'{key}' should hold strings, found {}", describe(a))))
             }

@@ -125,3 +125,22 @@ fn pi3det_info_with_bad_fields() {
     let e = open(dir.path()).err().unwrap().to_string();
     assert!(e.contains("pi3det_infos_train.pkl"), "{e}");
 }
+
+#[test]
+fn empty_frames_written_by_openpcdet_are_read() {
+    use pi3det_data::pickle::{to_vec, NdArray, Value};
+    let dir = tempfile::tempdir().unwrap();
+    let info = Value::List(vec![Value::dict([
+        ("frame_id", Value::Str("0000000".into())),
+        (
+            "annos",
+            Value::dict([
+                ("gt_names", Value::Array(NdArray::from_vec(Vec::<f64>::new()))),
+                ("gt_boxes_lidar", Value::Array(NdArray::new(vec![0, 7], Vec::<f32>::new()).unwrap())),
+            ]),
+        ),
+    ])]);
+    write(dir.path(), "pi3det_infos_val.pkl", &to_vec(&info).unwrap());
+    let ds = open(dir.path()).unwrap();
+    assert!(ds.info(0).unwrap().objects.is_empty());
+}
