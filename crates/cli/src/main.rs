@@ -24,6 +24,15 @@ enum Command {
     Eval(pi3det_eval::cli::EvalArgs),
     /// Platform-discrepancy statistics, tables and figures (paper §3.3, Fig. 2), with pose-free attitude.
     Stats(pi3det_analysis::cli::StatsArgs),
+    /// Train a detector (PointPillars, anchor or center head) from a TOML config.
+    #[cfg(feature = "nn")]
+    Train(pi3det_nn::cli::TrainArgs),
+    /// Run a trained detector over a dataset; write JSON lines and result.pkl, with latency.
+    #[cfg(feature = "nn")]
+    Detect(pi3det_nn::cli::DetectArgs),
+    /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
+    #[cfg(feature = "nn")]
+    Demo(pi3det_nn::cli::DemoArgs),
     /// Benchmarks that print a table.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -33,6 +42,9 @@ enum Command {
 enum BenchCommand {
     /// Simulator throughput (frames/s, rays/s) for a 64×1024 scan.
     Sim(pi3det_sim::cli::BenchArgs),
+    /// Our detector's training step and inference against PyTorch running the same network.
+    #[cfg(feature = "nn")]
+    Nn(pi3det_nn::cli::BenchNnArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -52,6 +64,14 @@ fn main() -> std::process::ExitCode {
         Command::Eval(args) => pi3det_eval::cli::run(args).map_err(anyhow::Error::from),
         Command::Stats(args) => pi3det_analysis::cli::run(args).map_err(anyhow::Error::from),
         Command::Bench(BenchCommand::Sim(args)) => pi3det_sim::cli::run_bench(args).map_err(anyhow::Error::from),
+        #[cfg(feature = "nn")]
+        Command::Train(args) => pi3det_nn::cli::run_train(args).map_err(anyhow::Error::from),
+        #[cfg(feature = "nn")]
+        Command::Detect(args) => pi3det_nn::cli::run_detect(args).map_err(anyhow::Error::from),
+        #[cfg(feature = "nn")]
+        Command::Demo(args) => pi3det_nn::cli::run_demo(args).map_err(anyhow::Error::from),
+        #[cfg(feature = "nn")]
+        Command::Bench(BenchCommand::Nn(args)) => pi3det_nn::cli::run_bench_nn(args).map_err(anyhow::Error::from),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -1,0 +1,279 @@
+//! Detector + training configuration (TOML files under `configs/`; every field has a default, so
+//! a file only states what differs).
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::augment::AugmentConfig;
+use crate::backbone_2d::Backbone2dConfig;
+use crate::dense_heads::{AnchorHeadConfig, CenterHeadConfig};
+use crate::error::{NnError, Result};
+use crate::pillarize::{Grid, PillarizeConfig};
+use crate::vfe::PillarVfeConfig;
+
+/// The dense head.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum HeadConfig {
+    Anchor(AnchorHeadConfig),
+    Center(CenterHeadConfig),
+}
+
+impl Default for HeadConfig {
+    fn default() -> Self {
+        Self::Anchor(AnchorHeadConfig::default())
+    }
+}
+
+/// Post-processing: score threshold and rotated NMS (class-agnostic, OpenPCDet semantics).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PostConfig {
+    pub score_threshold: f64,
+    pub nms_iou: f64,
+    pub nms_pre_max: usize,
+    pub nms_post_max: usize,
+    /// Run NMS per class instead of over all classes at once.
+    pub per_class_nms: bool,
+}
+
+impl Default for PostConfig {
+    fn default() -> Self {
+        Self { score_threshold: 0.1, nms_iou: 0.01, nms_pre_max: 4096, nms_post_max: 500, per_class_nms: false }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum OptimizerKind {
+    Adam,
+    #[default]
+    AdamW,
+}
+
+/// Training schedule and data pipeline.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainConfig {
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub optimizer: OptimizerKind,
+    /// Peak learning rate of the one-cycle schedule.
+    pub lr: f64,
+    pub weight_decay: f64,
+    /// One-cycle: start at `lr / div_factor`, peak after `pct_start` of the steps, end at
+    /// `lr / div_factor / final_div_factor`; β1 cycles between `moms[0]` and `moms[1]`.
+    pub div_factor: f64,
+    pub final_div_factor: f64,
+    pub pct_start: f64,
+    pub moms: [f64; 2],
+    pub beta2: f64,
+    /// Global gradient-norm clip (0: off).
+    pub grad_clip: f64,
+    pub seed: u64,
+    /// libtorch intra-op threads (0: let the runner decide, see `device::default_threads`).
+    pub threads: usize,
+    /// Batches prepared ahead on the loader thread.
+    pub prefetch: usize,
+    /// Evaluate every this many epochs (0: only at the end); checkpoint every this many epochs.
+    pub eval_every: usize,
+    pub ckpt_every: usize,
+    /// Checkpoints kept (older ones are deleted; the final one is always kept).
+    pub keep_checkpoints: usize,
+    /// Ground-truth boxes with fewer LiDAR points than this are dropped from training targets.
+    pub min_points_in_gt: usize,
+    /// Train on at most this many frames (0: all); evaluate on at most this many (0: all).
+    pub max_train_frames: usize,
+    pub max_eval_frames: usize,
+    /// Augmentations, applied in order to each training frame.
+    pub augment: Vec<AugmentConfig>,
+}
+
+impl Default for TrainConfig {
+    /// OpenPCDet's `adam_onecycle` recipe.
+    fn default() -> Self {
+        Self {
+            epochs: 20,
+            batch_size: 4,
+            optimizer: OptimizerKind::AdamW,
+            lr: 0.003,
+            weight_decay: 0.01,
+            div_factor: 10.0,
+            final_div_factor: 1e2,
+            pct_start: 0.4,
+            moms: [0.95, 0.85],
+            beta2: 0.99,
+            grad_clip: 10.0,
+            seed: 0,
+            threads: 0,
+            prefetch: 2,
+            eval_every: 0,
+            ckpt_every: 1,
+            keep_checkpoints: 3,
+            min_points_in_gt: 1,
+            max_train_frames: 0,
+            max_eval_frames: 0,
+            augment: crate::augment::default_pipeline(),
+        }
+    }
+}
+
+/// Everything a detector needs, saved inside each checkpoint.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DetectorConfig {
+    pub name: String,
+    /// Detected classes, in output order.
+    pub classes: Vec<String>,
+    /// Dataset class names mapped onto `classes` (Pi3DET writes both `Car` and `Vehicle`).
+    pub class_aliases: BTreeMap<String, String>,
+    /// Added to point and box z when frames are read (OpenPCDet `SHIFT_COOR`); detections are
+    /// shifted back.
+    pub shift_z: f64,
+    pub pillars: PillarizeConfig,
+    /// Run the BEV network in channels-last memory layout on the CPU (faster with oneDNN).
+    pub channels_last: bool,
+    pub batch_norm: crate::BatchNorm,
+    pub vfe: PillarVfeConfig,
+    pub backbone: Backbone2dConfig,
+    pub head: HeadConfig,
+    pub post: PostConfig,
+    pub train: TrainConfig,
+}
+
+impl Default for DetectorConfig {
+    fn default() -> Self {
+        Self {
+            name: "pointpillars".into(),
+            classes: vec!["Car".into(), "Pedestrian".into()],
+            class_aliases: [("Vehicle".to_string(), "Car".to_string())].into_iter().collect(),
+            shift_z: 0.0,
+            pillars: PillarizeConfig::default(),
+            channels_last: true,
+            batch_norm: crate::BatchNorm::default(),
+            vfe: PillarVfeConfig::default(),
+            backbone: Backbone2dConfig::default(),
+            head: HeadConfig::default(),
+            post: PostConfig::default(),
+            train: TrainConfig::default(),
+        }
+    }
+}
+
+impl DetectorConfig {
+    pub fn from_toml_str(s: &str) -> Result<Self> {
+        let cfg: Self = toml::from_str(s).map_err(|e| NnError::Config(e.to_string()))?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let s = std::fs::read_to_string(path).map_err(|e| NnError::io(path, e))?;
+        let cfg: Self =
+            toml::from_str(&s).map_err(|e| NnError::ConfigFile { path: path.to_path_buf(), message: e.to_string() })?;
+        cfg.validate().map_err(|e| NnError::ConfigFile { path: path.to_path_buf(), message: e.to_string() })?;
+        Ok(cfg)
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).unwrap_or_default()
+    }
+
+    /// Class index of a dataset class name (after aliases), if detected.
+    pub fn class_index(&self, name: &str) -> Option<usize> {
+        let name = self.class_aliases.get(name).map(String::as_str).unwrap_or(name);
+        self.classes.iter().position(|c| c == name)
+    }
+
+    /// Checks everything that would otherwise fail deep inside training.
+    pub fn validate(&self) -> Result<()> {
+        if self.classes.is_empty() {
+            return Err(NnError::Config("classes is empty".into()));
+        }
+        if !self.shift_z.is_finite() {
+            return Err(NnError::Config("shift_z must be finite".into()));
+        }
+        let grid = Grid::new(&self.pillars)?;
+        self.backbone.validate()?;
+        if self.vfe.num_filters.is_empty() || self.vfe.num_filters.iter().any(|&c| c < 2) {
+            return Err(NnError::Config("vfe.num_filters must be non-empty, each ≥ 2".into()));
+        }
+        let total_stride: i64 = self.backbone.layer_strides.iter().product();
+        if grid.nx as i64 % total_stride != 0 || grid.ny as i64 % total_stride != 0 {
+            return Err(NnError::Config(format!(
+                "pillar grid {}×{} is not divisible by the backbone's total stride {total_stride}",
+                grid.nx, grid.ny
+            )));
+        }
+        match &self.head {
+            HeadConfig::Anchor(a) => {
+                let names: Vec<&str> = a.anchors.iter().map(|a| a.class.as_str()).collect();
+                let classes: Vec<&str> = self.classes.iter().map(String::as_str).collect();
+                if names != classes {
+                    return Err(NnError::Config(format!(
+                        "head.anchors must list one entry per class, in the order of classes {classes:?} (found {names:?})"
+                    )));
+                }
+                for c in &a.anchors {
+                    c.validate()?;
+                }
+            }
+            HeadConfig::Center(c) => {
+                if c.shared_channels < 1 || c.num_head_convs == 0 || c.max_objects_per_frame < 1 {
+                    return Err(NnError::Config(
+                        "center head: shared_channels, num_head_convs and max_objects_per_frame must be positive"
+                            .into(),
+                    ));
+                }
+            }
+        }
+        let t = &self.train;
+        if t.batch_size == 0 || t.epochs == 0 {
+            return Err(NnError::Config("train.batch_size and train.epochs must be positive".into()));
+        }
+        if !(t.lr > 0.0 && t.lr.is_finite()) || t.div_factor <= 0.0 || t.final_div_factor <= 0.0 {
+            return Err(NnError::Config("train.lr, div_factor and final_div_factor must be positive".into()));
+        }
+        if !(0.0..=1.0).contains(&t.pct_start) {
+            return Err(NnError::Config("train.pct_start must be in [0, 1]".into()));
+        }
+        for a in &t.augment {
+            a.validate()?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_round_trips_through_toml() {
+        let cfg = DetectorConfig::default();
+        cfg.validate().unwrap();
+        let back = DetectorConfig::from_toml_str(&cfg.to_toml()).unwrap();
+        assert_eq!(back, cfg);
+    }
+
+    #[test]
+    fn rejects_unknown_fields_and_bad_values() {
+        assert!(DetectorConfig::from_toml_str("epochz = 3").is_err());
+        assert!(DetectorConfig::from_toml_str("[train]\nbatch_size = 0").is_err());
+        assert!(DetectorConfig::from_toml_str("classes = [\"Car\"]").is_err(), "anchors must match classes");
+        let cfg = DetectorConfig::from_toml_str("[head]\ntype = \"center\"\nshared_channels = 32").unwrap();
+        assert!(matches!(cfg.head, HeadConfig::Center(ref c) if c.shared_channels == 32));
+        assert_eq!(cfg.class_index("Vehicle"), Some(0));
+        assert_eq!(cfg.class_index("Cyclist"), None);
+    }
+
+    #[test]
+    fn presets_parse() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+        for name in ["pointpillars_cpu.toml", "pointpillars_paper.toml", "centerpoint_cpu.toml"] {
+            DetectorConfig::from_file(&dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        }
+    }
+}

@@ -1,0 +1,295 @@
+//! Frames → batches: reading, class mapping and z shift, augmentation, pillarization and target
+//! assignment, in parallel over a batch's frames (rayon) on a background thread that keeps
+//! `prefetch` batches ready while the network trains.
+
+use std::path::Path;
+use std::sync::mpsc::{sync_channel, Receiver};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use pi3det_data::{Dataset, Frame, FrameInfo, Platform};
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use crate::augment::{Augment, Sample};
+use crate::config::DetectorConfig;
+use crate::detector::{FrameTargets, Inputs, Preprocessor, Targets};
+use crate::error::{NnError, Result};
+use crate::pillarize::Pillars;
+
+/// A dataset restricted to some of its frames.
+#[derive(Clone)]
+pub struct Subset {
+    pub dataset: Arc<dyn Dataset>,
+    pub indices: Vec<usize>,
+}
+
+impl Subset {
+    pub fn all(dataset: Arc<dyn Dataset>) -> Self {
+        let indices = (0..dataset.len()).collect();
+        Self { dataset, indices }
+    }
+
+    pub fn len(&self) -> usize {
+        self.indices.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.indices.is_empty()
+    }
+
+    /// Keeps the frames of one platform.
+    pub fn platform(self, platform: Platform) -> Result<Self> {
+        let mut keep = Vec::new();
+        for &i in &self.indices {
+            if self.dataset.info(i)?.platform == platform {
+                keep.push(i);
+            }
+        }
+        Ok(Self { indices: keep, ..self })
+    }
+
+    /// Keeps at most `n` frames spread evenly over the subset (0: all).
+    pub fn take_spread(self, n: usize) -> Self {
+        if n == 0 || n >= self.indices.len() {
+            return self;
+        }
+        let len = self.indices.len();
+        let indices = (0..n).map(|k| self.indices[k * len / n]).collect();
+        Self { indices, ..self }
+    }
+
+    pub fn infos(&self) -> Result<Vec<FrameInfo>> {
+        self.indices.par_iter().map(|&i| self.dataset.info(i).map_err(NnError::from)).collect()
+    }
+}
+
+/// Opens a dataset for a split: a folder holding `pi3det_infos_<split>.pkl` opens that file only;
+/// anything else is opened as `pi3det_data::open` does.
+pub fn open_split(path: &Path, split: Option<&str>) -> Result<Arc<dyn Dataset>> {
+    if let Some(split) = split {
+        let file = path.join(format!("pi3det_infos_{split}.pkl"));
+        if path.is_dir() && file.is_file() {
+            return Ok(Arc::from(pi3det_data::open(&file)?));
+        }
+    }
+    Ok(Arc::from(pi3det_data::open(path)?))
+}
+
+/// A frame in the detector's frame (z shifted) with its detectable boxes.
+pub fn frame_to_sample(frame: &Frame, cfg: &DetectorConfig, min_points: usize) -> Sample {
+    let dz = cfg.shift_z as f32;
+    let mut points: Vec<[f32; 4]> = Vec::with_capacity(frame.points.len());
+    for p in frame.points.iter() {
+        let q = [p[0], p[1], p[2] + dz, p.get(3).copied().unwrap_or(0.0)];
+        if q.iter().all(|v| v.is_finite()) {
+            points.push(q);
+        }
+    }
+    let mut boxes = Vec::new();
+    let mut classes = Vec::new();
+    for o in &frame.info.objects {
+        let Some(k) = cfg.class_index(&o.name) else { continue };
+        let b = o.box3d;
+        if !b.to_array().iter().all(|v| v.is_finite()) || b.dx <= 0.0 || b.dy <= 0.0 || b.dz <= 0.0 {
+            continue;
+        }
+        if min_points > 0 {
+            let n = match o.num_points {
+                Some(n) => n as usize,
+                None => b.count_points(frame.points.xyz_f64()),
+            };
+            if n < min_points {
+                continue;
+            }
+        }
+        let mut b = b;
+        b.z += cfg.shift_z;
+        boxes.push(b);
+        classes.push(k);
+    }
+    Sample { points, boxes, classes, platform_jitter: None }
+}
+
+/// Per-frame RNG seed from the run seed, epoch and frame index (splitmix64).
+pub fn frame_seed(seed: u64, epoch: u64, index: u64) -> u64 {
+    let mut z = seed ^ epoch.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// A prepared batch.
+pub struct Batch {
+    pub inputs: Inputs,
+    /// Present when training.
+    pub targets: Option<Targets>,
+    /// The frames' infos (for writing detections).
+    pub infos: Vec<FrameInfo>,
+    /// Seconds spent reading and preparing the batch on the loader thread.
+    pub prep_seconds: f64,
+    pub num_pillars: usize,
+    pub dropped_points: usize,
+}
+
+/// How to load.
+#[derive(Clone)]
+pub struct LoaderOptions {
+    pub batch_size: usize,
+    /// Training: shuffle, augment, build targets.
+    pub train: bool,
+    pub seed: u64,
+    pub epoch: u64,
+    pub prefetch: usize,
+    pub drop_last: bool,
+}
+
+/// Prepares one frame. The augmentation list is empty at inference.
+pub fn prepare_frame(
+    prep: &Preprocessor,
+    augments: &[Box<dyn Augment>],
+    frame: &Frame,
+    train: bool,
+    rng_seed: u64,
+) -> Result<(Pillars, Option<FrameTargets>)> {
+    let cfg = &prep.cfg;
+    let mut s = frame_to_sample(frame, cfg, if train { cfg.train.min_points_in_gt } else { 0 });
+    let mut pillarizer = prep.pillarizer()?;
+    if train {
+        let mut rng = ChaCha8Rng::seed_from_u64(rng_seed);
+        for a in augments {
+            a.apply(&mut s, &mut rng);
+        }
+        // Boxes whose centre left the grid cannot be learnt; headings back to [−π, π).
+        let g = prep.grid;
+        let keep: Vec<bool> = s.boxes.iter().map(|b| g.contains_xy(b.x, b.y)).collect();
+        let mut k = 0;
+        s.boxes.retain(|_| {
+            k += 1;
+            keep[k - 1]
+        });
+        let mut k = 0;
+        s.classes.retain(|_| {
+            k += 1;
+            keep[k - 1]
+        });
+        for b in &mut s.boxes {
+            *b = b.with_wrapped_heading();
+        }
+        s.points.shuffle(&mut rng);
+        let pillars = pillarizer.run(&s.points, cfg.pillars.max_pillars_train);
+        Ok((pillars, Some(prep.targets(&s))))
+    } else {
+        Ok((pillarizer.run(&s.points, cfg.pillars.max_pillars_test), None))
+    }
+}
+
+/// Prepares a batch of frames (rayon over the frames).
+pub fn prepare_batch(
+    prep: &Preprocessor,
+    augments: &[Box<dyn Augment>],
+    subset: &Subset,
+    positions: &[usize],
+    opts: &LoaderOptions,
+) -> Result<Batch> {
+    let t = Instant::now();
+    let items: Vec<(FrameInfo, Pillars, Option<FrameTargets>)> = positions
+        .par_iter()
+        .map(|&pos| {
+            let index = subset.indices[pos];
+            let frame = subset.dataset.load(index)?;
+            let seed = frame_seed(opts.seed, opts.epoch, index as u64);
+            let (p, t) = prepare_frame(prep, augments, &frame, opts.train, seed)?;
+            Ok((frame.info, p, t))
+        })
+        .collect::<Result<_>>()?;
+    let pillars: Vec<&Pillars> = items.iter().map(|x| &x.1).collect();
+    let inputs = prep.collate_inputs(&pillars);
+    let targets = if opts.train {
+        let t: Vec<&FrameTargets> = items.iter().filter_map(|x| x.2.as_ref()).collect();
+        Some(prep.collate_targets(&t))
+    } else {
+        None
+    };
+    let num_pillars = pillars.iter().map(|p| p.len()).sum();
+    let dropped_points = pillars.iter().map(|p| p.dropped_points).sum();
+    Ok(Batch {
+        inputs,
+        targets,
+        infos: items.into_iter().map(|x| x.0).collect(),
+        prep_seconds: t.elapsed().as_secs_f64(),
+        num_pillars,
+        dropped_points,
+    })
+}
+
+/// The batches of one pass over a subset, prepared on a background thread.
+pub struct Loader {
+    rx: Option<Receiver<Result<Batch>>>,
+    handle: Option<JoinHandle<()>>,
+    spawn_error: Option<String>,
+    pub num_batches: usize,
+}
+
+impl Loader {
+    pub fn new(
+        prep: Arc<Preprocessor>,
+        augments: Arc<Vec<Box<dyn Augment>>>,
+        subset: Subset,
+        opts: LoaderOptions,
+    ) -> Self {
+        let mut order: Vec<usize> = (0..subset.len()).collect();
+        if opts.train {
+            order.shuffle(&mut ChaCha8Rng::seed_from_u64(frame_seed(opts.seed, opts.epoch, u64::MAX)));
+        }
+        let bs = opts.batch_size.max(1);
+        let mut batches: Vec<Vec<usize>> = order.chunks(bs).map(|c| c.to_vec()).collect();
+        if opts.drop_last && batches.len() > 1 && batches.last().is_some_and(|b| b.len() < bs) {
+            batches.pop();
+        }
+        let num_batches = batches.len();
+        let (tx, rx) = sync_channel(opts.prefetch.max(1));
+        let handle = std::thread::Builder::new().name("pi3det-loader".into()).spawn(move || {
+            for b in batches {
+                let r = prepare_batch(&prep, &augments, &subset, &b, &opts);
+                let failed = r.is_err();
+                if tx.send(r).is_err() || failed {
+                    return;
+                }
+            }
+        });
+        match handle {
+            Ok(h) => Self { rx: Some(rx), handle: Some(h), spawn_error: None, num_batches },
+            Err(e) => Self { rx: None, handle: None, spawn_error: Some(e.to_string()), num_batches },
+        }
+    }
+}
+
+impl Iterator for Loader {
+    type Item = Result<Batch>;
+    fn next(&mut self) -> Option<Self::Item> {
+        if let Some(e) = self.spawn_error.take() {
+            return Some(Err(NnError::Loader(format!("cannot start the loader thread: {e}"))));
+        }
+        match self.rx.as_ref()?.recv() {
+            Ok(b) => Some(b),
+            Err(_) => {
+                self.rx = None;
+                None
+            }
+        }
+    }
+}
+
+impl Drop for Loader {
+    fn drop(&mut self) {
+        // Dropping the receiver makes the thread's next send fail, so it stops.
+        self.rx = None;
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}

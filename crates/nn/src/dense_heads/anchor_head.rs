@@ -1,0 +1,230 @@
+//! Anchor head of SECOND / PointPillars (OpenPCDet `AnchorHeadSingle`): 1×1 convolutions give,
+//! per anchor, class logits, a residual box code ([`ResidualCoder`]) and a two-bin direction
+//! classifier. Loss: sigmoid focal (α 0.25, γ 2) + smooth-L1 with sin(Δθ) + direction
+//! cross-entropy, weights 1 / 2 / 0.2, each normalised by the frame's positive anchors.
+//!
+//! Trained by `pi3det train --config configs/pointpillars_cpu.toml --data DIR`.
+
+use serde::{Deserialize, Serialize};
+use tch::nn::{self, Module};
+use tch::{Device, Kind, Tensor};
+
+use crate::box_coder::{limit_period_tensor, ResidualCoder};
+use crate::losses;
+use crate::target_assigner::axis_aligned::{DIR_OFFSET, NUM_DIR_BINS};
+use crate::target_assigner::{AnchorClassConfig, Anchors};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AnchorHeadConfig {
+    /// One entry per class, in the order of the config's `classes`.
+    pub anchors: Vec<AnchorClassConfig>,
+    pub focal_alpha: f64,
+    pub focal_gamma: f64,
+    pub smooth_l1_beta: f64,
+    pub code_weights: [f64; 7],
+    pub cls_weight: f64,
+    pub loc_weight: f64,
+    pub dir_weight: f64,
+}
+
+impl Default for AnchorHeadConfig {
+    /// OpenPCDet's PointPillars (reference §1c, §6), boxes in a frame whose ground is near z = 0.
+    fn default() -> Self {
+        Self {
+            anchors: vec![
+                AnchorClassConfig {
+                    class: "Car".into(),
+                    size: [4.2, 2.0, 1.6],
+                    bottom_z: 0.0,
+                    rotations: vec![0.0, std::f64::consts::FRAC_PI_2],
+                    matched_threshold: 0.6,
+                    unmatched_threshold: 0.45,
+                },
+                AnchorClassConfig {
+                    class: "Pedestrian".into(),
+                    size: [0.8, 0.6, 1.73],
+                    bottom_z: 0.0,
+                    rotations: vec![0.0, std::f64::consts::FRAC_PI_2],
+                    matched_threshold: 0.5,
+                    unmatched_threshold: 0.35,
+                },
+            ],
+            focal_alpha: 0.25,
+            focal_gamma: 2.0,
+            smooth_l1_beta: 1.0 / 9.0,
+            code_weights: [1.0; 7],
+            cls_weight: 1.0,
+            loc_weight: 2.0,
+            dir_weight: 0.2,
+        }
+    }
+}
+
+impl AnchorHeadConfig {
+    pub fn anchors_per_location(&self) -> i64 {
+        self.anchors.iter().map(|a| a.rotations.len() as i64).sum()
+    }
+
+    pub fn init(&self, vs: nn::Path, in_channels: i64, num_classes: i64) -> AnchorHead {
+        let a = self.anchors_per_location();
+        let pi = 0.01f64;
+        let conv = |name: &str, out: i64, bias: f64, std: f64| {
+            nn::conv2d(
+                &vs / name,
+                in_channels,
+                out,
+                1,
+                nn::ConvConfig {
+                    bias: true,
+                    ws_init: nn::Init::Randn { mean: 0.0, stdev: std },
+                    bs_init: nn::Init::Const(bias),
+                    ..Default::default()
+                },
+            )
+        };
+        AnchorHead {
+            cfg: self.clone(),
+            num_classes,
+            conv_cls: conv("conv_cls", a * num_classes, -((1.0 - pi) / pi).ln(), 0.01),
+            conv_box: conv("conv_box", a * 7, 0.0, 0.001),
+            conv_dir: conv("conv_dir_cls", a * NUM_DIR_BINS as i64, 0.0, 0.01),
+            code_weights: Tensor::from_slice(&self.code_weights.map(|v| v as f32)).to_device(vs.device()),
+        }
+    }
+}
+
+/// Raw head outputs, flattened per anchor.
+pub struct AnchorOutput {
+    /// `[B, N, classes]` logits.
+    pub cls: Tensor,
+    /// `[B, N, 7]` box codes.
+    pub boxes: Tensor,
+    /// `[B, N, 2]` direction logits.
+    pub dir: Tensor,
+}
+
+/// Training targets of a batch (built on the loader thread, see [`crate::data_loader`]).
+pub struct AnchorBatchTargets {
+    /// `[B, N]`: −1 ignored, 0 background, `k + 1` class `k`.
+    pub labels: Tensor,
+    /// `[P]` flat `b·N + anchor` of the positives, their codes `[P, 7]`, direction bins `[P]` and
+    /// weights `[P]` (1 / positives of their frame).
+    pub pos_index: Tensor,
+    pub pos_codes: Tensor,
+    pub pos_dir: Tensor,
+    pub pos_weight: Tensor,
+}
+
+impl AnchorBatchTargets {
+    pub fn to_device(&self, d: Device) -> Self {
+        Self {
+            labels: self.labels.to_device(d),
+            pos_index: self.pos_index.to_device(d),
+            pos_codes: self.pos_codes.to_device(d),
+            pos_dir: self.pos_dir.to_device(d),
+            pos_weight: self.pos_weight.to_device(d),
+        }
+    }
+}
+
+#[derive(Debug)]
+pub struct AnchorHead {
+    pub cfg: AnchorHeadConfig,
+    num_classes: i64,
+    conv_cls: nn::Conv2D,
+    conv_box: nn::Conv2D,
+    conv_dir: nn::Conv2D,
+    code_weights: Tensor,
+}
+
+impl AnchorHead {
+    /// `[B, C, H, W]` → per-anchor outputs, anchors ordered (y, x, class, rotation).
+    pub fn forward(&self, x: &Tensor) -> AnchorOutput {
+        let b = x.size()[0];
+        let flat = |t: Tensor, k: i64| t.permute([0, 2, 3, 1]).contiguous().view([b, -1, k]);
+        AnchorOutput {
+            cls: flat(self.conv_cls.forward(x), self.num_classes),
+            boxes: flat(self.conv_box.forward(x), 7),
+            dir: flat(self.conv_dir.forward(x), NUM_DIR_BINS as i64),
+        }
+    }
+
+    /// Returns `(total, [cls, loc, dir])`, each already weighted and averaged over the batch.
+    pub fn loss(&self, out: &AnchorOutput, t: &AnchorBatchTargets) -> (Tensor, [Tensor; 3]) {
+        let (b, n, c) = out.cls.size3().expect("cls is [B, N, C]");
+        let labels = &t.labels;
+        let positives = labels.gt(0).to_kind(Kind::Float);
+        let cared = labels.ge(0).to_kind(Kind::Float);
+        let pos_norm = positives.sum_dim_intlist([1].as_slice(), true, Kind::Float).clamp_min(1.0);
+        let cls_weights = cared / &pos_norm;
+        let one_hot = Tensor::zeros([b, n, c + 1], (Kind::Float, out.cls.device())).scatter_value(
+            -1,
+            &labels.clamp_min(0).unsqueeze(-1),
+            1.0,
+        );
+        let one_hot = one_hot.narrow(-1, 1, c);
+        let bs = b as f64;
+        let cls =
+            losses::sigmoid_focal_loss(&out.cls, &one_hot, &cls_weights, self.cfg.focal_alpha, self.cfg.focal_gamma)
+                * (self.cfg.cls_weight / bs);
+        let (loc, dir) = if t.pos_index.size()[0] > 0 {
+            let box_preds = out.boxes.view([b * n, 7]).index_select(0, &t.pos_index);
+            let (p, tg) = losses::add_sin_difference(&box_preds, &t.pos_codes, 6);
+            let loc = losses::weighted_smooth_l1(&p, &tg, &self.code_weights, &t.pos_weight, self.cfg.smooth_l1_beta)
+                * (self.cfg.loc_weight / bs);
+            let dir_preds = out.dir.view([b * n, NUM_DIR_BINS as i64]).index_select(0, &t.pos_index);
+            let dir =
+                losses::weighted_cross_entropy(&dir_preds, &t.pos_dir, &t.pos_weight) * (self.cfg.dir_weight / bs);
+            (loc, dir)
+        } else {
+            let z = out.boxes.sum(Kind::Float) * 0.0;
+            (z.shallow_clone(), z)
+        };
+        (&cls + &loc + &dir, [cls, loc, dir])
+    }
+
+    /// Candidate boxes of frame `i`: the `pre_max` best anchors scoring at least
+    /// `score_threshold`, decoded. Returns `(boxes [K, 7], scores [K], labels [K])` on the CPU.
+    pub fn candidates(
+        &self,
+        out: &AnchorOutput,
+        anchors: &Tensor,
+        i: i64,
+        score_threshold: f64,
+        pre_max: i64,
+    ) -> (Tensor, Tensor, Tensor) {
+        // Max over classes on the logits (sigmoid is monotonic), threshold, then the best
+        // `pre_max` of the survivors (NMS sorts them).
+        let (logits, labels) = out.cls.get(i).max_dim(1, false); // [N]
+        let logit_threshold = (score_threshold / (1.0 - score_threshold).max(1e-12)).ln();
+        let idx = logits.ge(logit_threshold).nonzero().squeeze_dim(1);
+        let mut scores = logits.index_select(0, &idx);
+        let mut idx = idx;
+        if scores.size()[0] > pre_max {
+            let (top, j) = scores.topk(pre_max, 0, true, false);
+            idx = idx.index_select(0, &j);
+            scores = top;
+        }
+        let scores = scores.sigmoid();
+        let labels = labels.index_select(0, &idx);
+        let codes = out.boxes.get(i).index_select(0, &idx);
+        let anchors = anchors.index_select(0, &idx);
+        let boxes = ResidualCoder::decode_tensor(&codes, &anchors);
+        // Direction: fold the heading into a half turn and pick the half the classifier says.
+        let dir_labels = out.dir.get(i).index_select(0, &idx).argmax(-1, false).to_kind(Kind::Float);
+        let period = 2.0 * std::f64::consts::PI / NUM_DIR_BINS as f64;
+        let rot = boxes.select(1, 6);
+        let dir_rot = limit_period_tensor(&(&rot - DIR_OFFSET), 0.0, period);
+        let heading = dir_rot + DIR_OFFSET + period * dir_labels;
+        let boxes = Tensor::cat(&[boxes.narrow(1, 0, 6), heading.unsqueeze(1)], 1);
+        (boxes.to_device(Device::Cpu), scores.to_device(Device::Cpu), labels.to_device(Device::Cpu))
+    }
+}
+
+/// Anchors for the head's output map (`cfg.anchors[k]` is class `k`, see
+/// [`crate::config::DetectorConfig::validate`]).
+pub fn make_anchors(cfg: &AnchorHeadConfig, h: usize, w: usize, cell: [f64; 2], origin: [f64; 2]) -> Anchors {
+    let per_class: Vec<(usize, AnchorClassConfig)> = cfg.anchors.iter().cloned().enumerate().collect();
+    Anchors::generate(&per_class, h, w, cell, origin)
+}

@@ -1,0 +1,172 @@
+//! Center head of CenterPoint (Yin, Zhou, Krähenbühl, CVPR 2021; OpenPCDet `CenterHead` with one
+//! task holding all classes): a shared 3×3 convolution, then separate heads for the class
+//! heatmaps, the centre offset, z, log size and (cos, sin) heading. Loss: CornerNet focal loss on
+//! the Gaussian heatmaps + masked L1 on the codes at box centres (weights 1 / 2). Decoding: peaks
+//! of the heatmap (3×3 max), top-k, then the rotated NMS of [`crate::detector`].
+//!
+//! Trained by `pi3det train --config configs/centerpoint_cpu.toml --data DIR`.
+
+use serde::{Deserialize, Serialize};
+use tch::nn::{self, ModuleT};
+use tch::{Device, Kind, Tensor};
+
+use crate::losses;
+use crate::target_assigner::center::{CenterMap, CenterTargetConfig, CENTER_CODE_SIZE};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CenterHeadConfig {
+    pub shared_channels: i64,
+    /// Convolutions per separate head (the last one is the output convolution).
+    pub num_head_convs: usize,
+    pub targets: CenterTargetConfig,
+    pub code_weights: [f64; CENTER_CODE_SIZE],
+    pub cls_weight: f64,
+    pub loc_weight: f64,
+    /// Candidates taken from the heatmap per frame before NMS.
+    pub max_objects_per_frame: i64,
+}
+
+impl Default for CenterHeadConfig {
+    /// OpenPCDet's CenterPoint-pillar head.
+    fn default() -> Self {
+        Self {
+            shared_channels: 64,
+            num_head_convs: 2,
+            targets: CenterTargetConfig::default(),
+            code_weights: [1.0; CENTER_CODE_SIZE],
+            cls_weight: 1.0,
+            loc_weight: 2.0,
+            max_objects_per_frame: 500,
+        }
+    }
+}
+
+/// Output heads: name, channels. The regression heads' outputs concatenate to the code order
+/// `[Δx, Δy, z, log dx, log dy, log dz, cos θ, sin θ]`.
+const REG_HEADS: [(&str, i64); 4] = [("center", 2), ("center_z", 1), ("dim", 3), ("rot", 2)];
+
+impl CenterHeadConfig {
+    pub fn init(&self, vs: nn::Path, in_channels: i64, num_classes: i64, bn: &crate::BatchNorm) -> CenterHead {
+        let c = self.shared_channels;
+        let conv3 = |p: nn::Path, i: i64, o: i64, bias: bool, bs: f64| {
+            nn::conv2d(
+                p,
+                i,
+                o,
+                3,
+                nn::ConvConfig { padding: 1, bias, bs_init: nn::Init::Const(bs), ..Default::default() },
+            )
+        };
+        let shared = nn::seq_t()
+            .add(conv3(&vs / "shared_conv", in_channels, c, true, 0.0))
+            .add(nn::batch_norm2d(&vs / "shared_bn", c, bn.config()))
+            .add_fn(|x| x.relu());
+        let head = |name: &str, out: i64, bias: f64| {
+            let p = &vs / name;
+            let mut seq = nn::seq_t();
+            for k in 0..self.num_head_convs.saturating_sub(1) {
+                seq = seq
+                    .add(conv3(&p / format!("conv{k}"), c, c, false, 0.0))
+                    .add(nn::batch_norm2d(&p / format!("bn{k}"), c, bn.config()))
+                    .add_fn(|x| x.relu());
+            }
+            seq.add(conv3(&p / "out", c, out, true, bias))
+        };
+        CenterHead {
+            cfg: self.clone(),
+            shared,
+            hm: head("hm", num_classes, -2.19),
+            reg: REG_HEADS.iter().map(|(n, o)| head(n, *o, 0.0)).collect(),
+            code_weights: Tensor::from_slice(&self.code_weights.map(|v| v as f32)).to_device(vs.device()),
+        }
+    }
+}
+
+pub struct CenterOutput {
+    /// `[B, classes, H, W]` heatmap logits.
+    pub heatmap: Tensor,
+    /// `[B, 8, H, W]` codes.
+    pub codes: Tensor,
+}
+
+pub struct CenterBatchTargets {
+    /// `[B, classes, H, W]`.
+    pub heatmap: Tensor,
+    /// `[K]` flat `b·H·W + cell` of the boxes and their codes `[K, 8]`.
+    pub index: Tensor,
+    pub codes: Tensor,
+}
+
+impl CenterBatchTargets {
+    pub fn to_device(&self, d: Device) -> Self {
+        Self { heatmap: self.heatmap.to_device(d), index: self.index.to_device(d), codes: self.codes.to_device(d) }
+    }
+}
+
+#[derive(Debug)]
+pub struct CenterHead {
+    pub cfg: CenterHeadConfig,
+    shared: nn::SequentialT,
+    hm: nn::SequentialT,
+    reg: Vec<nn::SequentialT>,
+    code_weights: Tensor,
+}
+
+impl CenterHead {
+    /// `[B, C, H, W]` → heatmap logits and codes on the same grid.
+    pub fn forward_t(&self, x: &Tensor, train: bool) -> CenterOutput {
+        let x = self.shared.forward_t(x, train);
+        let codes: Vec<Tensor> = self.reg.iter().map(|h| h.forward_t(&x, train)).collect();
+        CenterOutput { heatmap: self.hm.forward_t(&x, train), codes: Tensor::cat(&codes, 1) }
+    }
+
+    /// Returns `(total, [heatmap, loc])`, weighted; the heatmap loss is normalised by the number
+    /// of boxes in the batch, the regression loss by the number of boxes.
+    pub fn loss(&self, out: &CenterOutput, t: &CenterBatchTargets) -> (Tensor, [Tensor; 2]) {
+        let hm = losses::center_focal_loss(&out.heatmap, &t.heatmap) * self.cfg.cls_weight;
+        let k = t.index.size()[0];
+        let loc = if k > 0 {
+            let (b, c, h, w) = out.codes.size4().expect("codes are [B, 8, H, W]");
+            let preds = out.codes.permute([0, 2, 3, 1]).reshape([b * h * w, c]).index_select(0, &t.index);
+            losses::reg_l1_loss(&preds, &t.codes, &self.code_weights, k as f64) * self.cfg.loc_weight
+        } else {
+            out.codes.sum(Kind::Float) * 0.0
+        };
+        (&hm + &loc, [hm, loc])
+    }
+
+    /// Candidates of frame `i`: heatmap peaks (3×3 max) above `score_threshold`, at most
+    /// `max_objects_per_frame`, decoded. Returns `(boxes [K, 7], scores [K], labels [K])` on the CPU.
+    pub fn candidates(
+        &self,
+        out: &CenterOutput,
+        map: &CenterMap,
+        i: i64,
+        score_threshold: f64,
+    ) -> (Tensor, Tensor, Tensor) {
+        let hm = out.heatmap.get(i).sigmoid(); // [C, H, W]
+        let (c, h, w) = hm.size3().expect("[C, H, W]");
+        let peaks = hm.unsqueeze(0).max_pool2d([3, 3], [1, 1], [1, 1], [1, 1], false).squeeze_dim(0);
+        let hm = &hm * hm.eq_tensor(&peaks).to_kind(Kind::Float);
+        let flat = hm.reshape([c * h * w]);
+        let k = self.cfg.max_objects_per_frame.min(c * h * w);
+        let (top, idx) = flat.topk(k, 0, true, true);
+        let keep = top.ge(score_threshold);
+        let idx = idx.masked_select(&keep);
+        let scores = top.masked_select(&keep);
+        let labels = idx.divide_scalar_mode(h * w, "floor").to_kind(Kind::Int64);
+        let cell = &idx - &labels * (h * w);
+        let iy_i = cell.divide_scalar_mode(w, "floor").to_kind(Kind::Int64);
+        let ix = (&cell - &iy_i * w).to_kind(Kind::Float);
+        let iy = iy_i.to_kind(Kind::Float);
+        let codes = out.codes.get(i).reshape([CENTER_CODE_SIZE as i64, h * w]).index_select(1, &cell).transpose(0, 1);
+        let col = |j: i64| codes.select(1, j);
+        let x = (ix + col(0)) * map.cell[0] + map.origin[0];
+        let y = (iy + col(1)) * map.cell[1] + map.origin[1];
+        let size = |j: i64| col(j).clamp(-10.0, 10.0).exp();
+        let heading = col(7).atan2(&col(6));
+        let boxes = Tensor::stack(&[x, y, col(2), size(3), size(4), size(5), heading], 1);
+        (boxes.to_device(Device::Cpu), scores.to_device(Device::Cpu), labels.to_device(Device::Cpu))
+    }
+}

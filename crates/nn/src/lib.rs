@@ -1,0 +1,74 @@
+//! Trainable LiDAR 3D detectors on libtorch (via `tch` 0.24, libtorch 2.11 from PyPI's torch
+//! wheel, installed by `scripts/setup-torch`): PointPillars with the SECOND-style anchor head or
+//! the CenterPoint center head, as OpenPCDet builds them; Rust pillarization, augmentation
+//! (including Pi3DET's Random Platform Jitter) and target assignment on a prefetching loader
+//! thread; training with AdamW and a one-cycle schedule; safetensors checkpoints; inference
+//! writing the formats `pi3det-eval` reads.
+//!
+//! | module | what |
+//! | --- | --- |
+//! | [`pillarize`] | points → pillars with decorated point features (rayon) |
+//! | [`vfe`], [`scatter`], [`backbone_2d`] | pillar feature net, BEV scatter, BEV backbone |
+//! | [`dense_heads`] | anchor head, center head |
+//! | [`target_assigner`], [`box_coder`], [`losses`] | anchors and IoU assignment, Gaussian heatmaps, encodings, losses |
+//! | [`augment`] | world flip / rotation / scaling, random object rotation, GT sampling, Random Platform Jitter |
+//! | [`detector`] | the assembled network, post-processing (score threshold, rotated NMS) |
+//! | [`data_loader`], [`train`], [`optim`], [`checkpoint`] | batches on a background thread, the training loop, AdamW + one-cycle, safetensors checkpoints |
+//! | [`detect`], [`eval`] | inference over a dataset, JSON lines / `result.pkl`, evaluation with `pi3det-eval` |
+//! | [`bench`](mod@bench) | the side-by-side benchmark against PyTorch (`python/bench_pointpillars.py`) |
+//! | `cli` (feature `cli`) | `pi3det train / detect / demo / bench nn` |
+//!
+//! Devices: [`device`] picks CUDA when libtorch's CUDA library loads and finds a GPU
+//! (`--device auto`), else the CPU; on the CPU the BEV network runs channels-last (oneDNN) and
+//! libtorch uses one thread on machines with up to two cores (faster than two on a busy two-core
+//! machine, see [`device::default_threads`]).
+
+pub mod augment;
+pub mod backbone_2d;
+pub mod bench;
+pub mod box_coder;
+pub mod checkpoint;
+#[cfg(feature = "cli")]
+pub mod cli;
+pub mod config;
+pub mod data_loader;
+pub mod dense_heads;
+pub mod detect;
+pub mod detector;
+pub mod device;
+pub mod error;
+pub mod eval;
+pub mod losses;
+pub mod optim;
+pub mod pillarize;
+pub mod scatter;
+pub mod target_assigner;
+pub mod train;
+pub mod vfe;
+
+pub use config::DetectorConfig;
+pub use detector::{Detection, Detector};
+pub use error::{NnError, Result};
+
+// `BatchNorm` is defined below.
+
+/// Batch-norm settings shared by every layer (OpenPCDet: eps 1e-3, momentum 0.01).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct BatchNorm {
+    pub eps: f64,
+    /// Weight of the current batch in the running statistics.
+    pub momentum: f64,
+}
+
+impl Default for BatchNorm {
+    fn default() -> Self {
+        Self { eps: 1e-3, momentum: 0.01 }
+    }
+}
+
+impl BatchNorm {
+    pub fn config(&self) -> tch::nn::BatchNormConfig {
+        tch::nn::BatchNormConfig { eps: self.eps, momentum: self.momentum, ..Default::default() }
+    }
+}

@@ -1,0 +1,270 @@
+//! Points → pillars (PointPillars, Lang et al. 2019): a BEV grid over the point-cloud range, at
+//! most `max_points_per_pillar` points per occupied cell and at most `max_pillars` cells, each
+//! point decorated with its offsets to the pillar's point mean and to the pillar's centre
+//! (OpenPCDet `PillarVFE` features: x, y, z, intensity, x−x̄, y−ȳ, z−z̄, x−x_c, y−y_c, z−z_c).
+//!
+//! Cells are taken in the order their first point arrives (OpenPCDet's voxel generator), so the
+//! result is deterministic; the decoration runs in parallel over pillars (rayon).
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{NnError, Result};
+
+/// Number of decorated features per point.
+pub const POINT_FEATURES: usize = 10;
+
+/// The grid: range and pillar size.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PillarizeConfig {
+    /// `[x_min, y_min, z_min, x_max, y_max, z_max]` in metres (after the config's z shift).
+    pub point_cloud_range: [f64; 6],
+    /// Pillar size `[x, y]` in metres; the pillar spans the whole z range.
+    pub pillar_size: [f64; 2],
+    pub max_points_per_pillar: usize,
+    /// Pillars kept per frame when training / at inference (first come, first kept).
+    pub max_pillars_train: usize,
+    pub max_pillars_test: usize,
+}
+
+impl Default for PillarizeConfig {
+    fn default() -> Self {
+        Self {
+            point_cloud_range: [-40.0, -40.0, -2.0, 40.0, 40.0, 4.0],
+            pillar_size: [0.4, 0.4],
+            max_points_per_pillar: 20,
+            max_pillars_train: 16000,
+            max_pillars_test: 24000,
+        }
+    }
+}
+
+/// Grid dimensions derived from a [`PillarizeConfig`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Grid {
+    pub x_min: f64,
+    pub y_min: f64,
+    pub z_min: f64,
+    pub x_max: f64,
+    pub y_max: f64,
+    pub z_max: f64,
+    pub vx: f64,
+    pub vy: f64,
+    /// Cells along x (columns of the BEV map) and y (rows).
+    pub nx: usize,
+    pub ny: usize,
+}
+
+impl Grid {
+    pub fn new(cfg: &PillarizeConfig) -> Result<Self> {
+        let r = cfg.point_cloud_range;
+        let [vx, vy] = cfg.pillar_size;
+        if r.iter().chain(&cfg.pillar_size).any(|v| !v.is_finite()) || vx <= 0.0 || vy <= 0.0 {
+            return Err(NnError::Config(format!("pillar grid: bad range {r:?} or pillar size {:?}", cfg.pillar_size)));
+        }
+        if r[3] <= r[0] || r[4] <= r[1] || r[5] <= r[2] {
+            return Err(NnError::Config(format!("point_cloud_range {r:?}: each max must exceed its min")));
+        }
+        let nx = ((r[3] - r[0]) / vx).round() as usize;
+        let ny = ((r[4] - r[1]) / vy).round() as usize;
+        if nx == 0 || ny == 0 || nx * ny > 64 << 20 {
+            return Err(NnError::Config(format!("pillar grid {nx}×{ny} is empty or too large")));
+        }
+        if cfg.max_points_per_pillar == 0 || cfg.max_pillars_train == 0 || cfg.max_pillars_test == 0 {
+            return Err(NnError::Config("max_points_per_pillar and max_pillars_* must be positive".into()));
+        }
+        Ok(Self { x_min: r[0], y_min: r[1], z_min: r[2], x_max: r[3], y_max: r[4], z_max: r[5], vx, vy, nx, ny })
+    }
+
+    /// Cell of a point, `None` outside the range (max bounds exclusive).
+    #[inline]
+    pub fn cell(&self, x: f32, y: f32, z: f32) -> Option<usize> {
+        let (x, y, z) = (x as f64, y as f64, z as f64);
+        if !(x >= self.x_min
+            && x < self.x_max
+            && y >= self.y_min
+            && y < self.y_max
+            && z >= self.z_min
+            && z < self.z_max)
+        {
+            return None;
+        }
+        let ix = (((x - self.x_min) / self.vx) as usize).min(self.nx - 1);
+        let iy = (((y - self.y_min) / self.vy) as usize).min(self.ny - 1);
+        Some(iy * self.nx + ix)
+    }
+
+    pub fn contains_xy(&self, x: f64, y: f64) -> bool {
+        x >= self.x_min && x < self.x_max && y >= self.y_min && y < self.y_max
+    }
+}
+
+/// Pillars of one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Pillars {
+    /// `[num_pillars, max_points, POINT_FEATURES]`, zero-padded.
+    pub features: Vec<f32>,
+    /// Flat BEV cell of each pillar, `iy * nx + ix`.
+    pub cells: Vec<i64>,
+    pub max_points: usize,
+    /// Points that fell in a full pillar or beyond `max_pillars` and were dropped.
+    pub dropped_points: usize,
+}
+
+impl Pillars {
+    pub fn len(&self) -> usize {
+        self.cells.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.cells.is_empty()
+    }
+}
+
+/// Reusable pillarizer (keeps its cell lookup table between frames).
+pub struct Pillarizer {
+    pub grid: Grid,
+    max_points: usize,
+    /// Cell → pillar index + 1 (0: empty); reset after each frame through `touched`.
+    lookup: Vec<u32>,
+}
+
+impl Pillarizer {
+    pub fn new(cfg: &PillarizeConfig) -> Result<Self> {
+        let grid = Grid::new(cfg)?;
+        Ok(Self { grid, max_points: cfg.max_points_per_pillar, lookup: vec![0; grid.nx * grid.ny] })
+    }
+
+    /// Pillarizes `points` (x, y, z, intensity); non-finite points and points outside the range
+    /// are skipped.
+    pub fn run(&mut self, points: &[[f32; 4]], max_pillars: usize) -> Pillars {
+        let g = self.grid;
+        let m = self.max_points;
+        // Pass 1 (sequential, cheap): assign points to pillars in arrival order.
+        let mut cells: Vec<i64> = Vec::new();
+        let mut members: Vec<u32> = Vec::new(); // pillar-major, m slots per pillar
+        let mut counts: Vec<u32> = Vec::new();
+        let mut dropped = 0usize;
+        for (i, p) in points.iter().enumerate() {
+            let Some(c) = g.cell(p[0], p[1], p[2]) else { continue };
+            let slot = self.lookup[c];
+            let pillar = if slot == 0 {
+                if cells.len() >= max_pillars {
+                    dropped += 1;
+                    continue;
+                }
+                cells.push(c as i64);
+                counts.push(0);
+                members.resize(members.len() + m, 0);
+                self.lookup[c] = cells.len() as u32;
+                cells.len() - 1
+            } else {
+                slot as usize - 1
+            };
+            let n = counts[pillar] as usize;
+            if n >= m {
+                dropped += 1;
+                continue;
+            }
+            members[pillar * m + n] = i as u32;
+            counts[pillar] += 1;
+        }
+        for &c in &cells {
+            self.lookup[c as usize] = 0;
+        }
+        // Pass 2 (parallel): decorate.
+        let mut features = vec![0f32; cells.len() * m * POINT_FEATURES];
+        features.par_chunks_mut(m * POINT_FEATURES).enumerate().for_each(|(k, out)| {
+            let n = counts[k] as usize;
+            let idx = &members[k * m..k * m + n];
+            let (mut sx, mut sy, mut sz) = (0f32, 0f32, 0f32);
+            for &i in idx {
+                let p = points[i as usize];
+                sx += p[0];
+                sy += p[1];
+                sz += p[2];
+            }
+            let inv = 1.0 / n.max(1) as f32;
+            let (mx, my, mz) = (sx * inv, sy * inv, sz * inv);
+            let c = cells[k] as usize;
+            let cx = (g.x_min + ((c % g.nx) as f64 + 0.5) * g.vx) as f32;
+            let cy = (g.y_min + ((c / g.nx) as f64 + 0.5) * g.vy) as f32;
+            let cz = ((g.z_min + g.z_max) * 0.5) as f32;
+            for (j, &i) in idx.iter().enumerate() {
+                let p = points[i as usize];
+                let f = &mut out[j * POINT_FEATURES..(j + 1) * POINT_FEATURES];
+                f.copy_from_slice(&[
+                    p[0],
+                    p[1],
+                    p[2],
+                    p[3],
+                    p[0] - mx,
+                    p[1] - my,
+                    p[2] - mz,
+                    p[0] - cx,
+                    p[1] - cy,
+                    p[2] - cz,
+                ]);
+            }
+        });
+        Pillars { features, cells, max_points: m, dropped_points: dropped }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg() -> PillarizeConfig {
+        PillarizeConfig {
+            point_cloud_range: [0.0, -2.0, -1.0, 4.0, 2.0, 1.0],
+            pillar_size: [1.0, 1.0],
+            max_points_per_pillar: 2,
+            max_pillars_train: 3,
+            max_pillars_test: 3,
+        }
+    }
+
+    #[test]
+    fn assigns_in_arrival_order_and_decorates() {
+        let mut p = Pillarizer::new(&cfg()).unwrap();
+        assert_eq!((p.grid.nx, p.grid.ny), (4, 4));
+        let pts = [
+            [0.5, -1.5, 0.0, 0.1], // cell (0, 0)
+            [3.5, 1.5, 0.5, 0.2],  // cell (3, 3)
+            [0.25, -1.75, 0.5, 0.3],
+            [0.75, -1.25, 0.0, 0.4], // third point in a full pillar: dropped
+            [9.0, 0.0, 0.0, 0.0],    // outside
+            [f32::NAN, 0.0, 0.0, 0.0],
+            [1.5, 0.5, -0.5, 0.5], // cell (1, 2)
+            [2.5, 0.5, -0.5, 0.5], // fourth pillar: dropped
+            [3.5, 1.5, 1.0, 0.5],  // z max is exclusive: outside
+        ];
+        let r = p.run(&pts, 3);
+        assert_eq!(r.cells, vec![0, 15, 9]);
+        assert_eq!(r.dropped_points, 2);
+        let f = &r.features;
+        let pf = POINT_FEATURES;
+        // Pillar 0, point 0: mean of its two points is (0.375, -1.625, 0.25); centre (0.5, -1.5, 0).
+        let p0 = &f[0..pf];
+        let want = [0.5, -1.5, 0.0, 0.1, 0.125, 0.125, -0.25, 0.0, 0.0, 0.0];
+        for (a, b) in p0.iter().zip(want) {
+            assert!((a - b).abs() < 1e-6, "{p0:?}");
+        }
+        // Pillar 1 has one point: its second slot is zero padding.
+        assert!(f[(2 + 1) * pf..(2 + 2) * pf].iter().all(|&v| v == 0.0));
+        // The lookup table is clean for the next frame.
+        let r2 = p.run(&pts[6..7], 3);
+        assert_eq!(r2.cells, vec![9]);
+    }
+
+    #[test]
+    fn rejects_bad_grids() {
+        let mut c = cfg();
+        c.pillar_size = [0.0, 1.0];
+        assert!(Grid::new(&c).is_err());
+        let mut c = cfg();
+        c.point_cloud_range[3] = -1.0;
+        assert!(Grid::new(&c).is_err());
+    }
+}

@@ -1,0 +1,316 @@
+//! Training: the loader thread prepares augmented batches with their targets while the network
+//! trains on the previous one; AdamW (or Adam) with a one-cycle schedule and gradient clipping;
+//! periodic evaluation with the project's evaluator; a checkpoint per `ckpt_every` epochs (atomic,
+//! with the optimiser moments) and `final.safetensors` (weights only); `--resume` continues from
+//! a checkpoint's epoch with its weights and moments; seeds fix the initial weights, the shuffling
+//! and every augmentation draw.
+//!
+//! `pi3det train --config configs/pointpillars_cpu.toml --data DATA/vehicle/train --val
+//! DATA/vehicle/val --out runs/pp_cpu`.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use tch::Device;
+
+use crate::augment::{Augment, AugmentConfig, GtDatabase, GtSamplingConfig};
+use crate::checkpoint::{self, TrainState};
+use crate::config::DetectorConfig;
+use crate::data_loader::{frame_to_sample, Loader, LoaderOptions, Subset};
+use crate::detect;
+use crate::detector::Detector;
+use crate::error::{NnError, Result};
+use crate::eval::{self, ApSummary};
+use crate::optim::{OneCycle, Optimizer};
+
+/// What to train on and where to write.
+pub struct TrainOptions {
+    pub config: DetectorConfig,
+    pub train: Subset,
+    pub val: Option<Subset>,
+    pub out_dir: PathBuf,
+    pub device: Device,
+    /// A checkpoint written by an earlier run of the same config to continue from.
+    pub resume: Option<PathBuf>,
+}
+
+/// Progress of one step, for progress bars.
+#[derive(Debug, Clone)]
+pub struct StepInfo {
+    pub epoch: usize,
+    pub epochs: usize,
+    pub batch: usize,
+    pub batches: usize,
+    pub step: i64,
+    pub lr: f64,
+    pub loss: f64,
+    pub terms: Vec<(&'static str, f64)>,
+    pub grad_norm: f64,
+    pub step_seconds: f64,
+    /// Seconds the training thread waited for the loader.
+    pub wait_seconds: f64,
+}
+
+/// Events reported while training.
+pub enum Event<'a> {
+    Start {
+        steps_per_epoch: usize,
+        total_steps: usize,
+        parameters: i64,
+        database: usize,
+    },
+    Step(&'a StepInfo),
+    /// `data_wait_seconds`: time the training thread waited for the loader in this epoch.
+    EpochEnd {
+        epoch: usize,
+        mean_loss: f64,
+        mean_terms: Vec<(&'static str, f64)>,
+        seconds: f64,
+        data_wait_seconds: f64,
+    },
+    Eval {
+        epoch: usize,
+        summary: &'a ApSummary,
+    },
+    Checkpoint {
+        path: &'a Path,
+    },
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpochLog {
+    pub epoch: usize,
+    pub mean_loss: f64,
+    pub seconds: f64,
+    pub eval: Option<ApSummary>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainReport {
+    pub final_checkpoint: PathBuf,
+    pub epochs: Vec<EpochLog>,
+    pub train_seconds: f64,
+    pub steps: i64,
+    pub final_eval: Option<ApSummary>,
+}
+
+/// Builds the augmentation pipeline (and the ground-truth database when it is used).
+pub fn build_augments(cfg: &DetectorConfig, train: &Subset) -> Result<(Vec<Box<dyn Augment>>, usize)> {
+    let db = match cfg.train.augment.iter().find_map(|a| match a {
+        AugmentConfig::GtSampling(c) => Some(c),
+        _ => None,
+    }) {
+        Some(c) => Some(Arc::new(build_database(cfg, train, c)?)),
+        None => None,
+    };
+    let n = db.as_ref().map_or(0, |d| d.len());
+    let augs = cfg.train.augment.iter().map(|a| a.build(db.as_ref(), &cfg.classes)).collect::<Result<_>>()?;
+    Ok((augs, n))
+}
+
+/// The ground-truth database of a training subset (frames read in parallel).
+pub fn build_database(cfg: &DetectorConfig, train: &Subset, gs: &GtSamplingConfig) -> Result<GtDatabase> {
+    let parts: Vec<GtDatabase> = train
+        .indices
+        .par_iter()
+        .map(|&i| {
+            let frame = train.dataset.load(i)?;
+            let s = frame_to_sample(&frame, cfg, cfg.train.min_points_in_gt);
+            Ok(GtDatabase::build([&s], &cfg.classes, gs))
+        })
+        .collect::<Result<_>>()?;
+    let mut db = GtDatabase { by_class: vec![Vec::new(); cfg.classes.len()] };
+    for p in parts {
+        for (c, objs) in p.by_class.into_iter().enumerate() {
+            db.by_class[c].extend(objs);
+        }
+    }
+    Ok(db)
+}
+
+/// The trainable variables by name.
+fn named_trainables(det: &Detector) -> Vec<(String, tch::Tensor)> {
+    let trainable: Vec<tch::Tensor> = det.vs.trainable_variables();
+    let ptrs: Vec<usize> = trainable.iter().map(|t| t.data_ptr() as usize).collect();
+    det.vs.variables().into_iter().filter(|(_, t)| ptrs.contains(&(t.data_ptr() as usize))).collect()
+}
+
+/// Evaluates a detector on a subset; ground truth restricted to the detector's BEV range.
+pub fn evaluate_subset(
+    det: &Detector,
+    subset: &Subset,
+    batch_size: usize,
+) -> Result<(ApSummary, pi3det_eval::EvalReport)> {
+    let (frames, _) = detect::detect(det, subset, batch_size, &mut |_, _| {})?;
+    let r = det.cfg().pillars.point_cloud_range;
+    let opts = eval::options(&det.cfg().classes, Some([r[0], r[1], r[3], r[4]]), None);
+    let (report, summary) = eval::evaluate(&frames, &opts)?;
+    Ok((summary, report))
+}
+
+/// Trains; `on_event` sees progress.
+pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<TrainReport> {
+    let cfg = &opts.config;
+    cfg.validate()?;
+    if opts.train.is_empty() {
+        return Err(NnError::Input("the training set has no frames".into()));
+    }
+    std::fs::create_dir_all(&opts.out_dir).map_err(|e| NnError::io(&opts.out_dir, e))?;
+    pi3det_data::io::write_atomic(&opts.out_dir.join("config.toml"), cfg.to_toml().as_bytes(), true)?;
+    tch::manual_seed(cfg.train.seed as i64);
+    let mut det = Detector::new(cfg, opts.device)?;
+    let mut optim = Optimizer::new(named_trainables(&det), &cfg.train);
+    let mut state = TrainState::default();
+    if let Some(path) = &opts.resume {
+        let ck = checkpoint::load(path)?;
+        if ck.config.to_toml() != cfg.to_toml() {
+            return Err(NnError::Input(format!(
+                "{}: was written with another config; resume with the checkpoint's config",
+                path.display()
+            )));
+        }
+        ck.load_into(&mut det, path)?;
+        optim.load_state(&ck.tensors, ck.state.step)?;
+        state = ck.state;
+    }
+    let (augments, db_len) = build_augments(cfg, &opts.train)?;
+    let augments = Arc::new(augments);
+    let bs = cfg.train.batch_size;
+    // The loader drops a last partial batch (unless it is the only one).
+    let steps_per_epoch = (opts.train.len() / bs).max(1);
+    let total_steps = steps_per_epoch * cfg.train.epochs;
+    state.total_steps = total_steps;
+    let schedule = OneCycle::new(&cfg.train, total_steps);
+    on_event(Event::Start { steps_per_epoch, total_steps, parameters: det.num_parameters(), database: db_len });
+
+    let mut report = TrainReport {
+        final_checkpoint: PathBuf::new(),
+        epochs: Vec::new(),
+        train_seconds: 0.0,
+        steps: 0,
+        final_eval: None,
+    };
+    let mut saved: Vec<PathBuf> = Vec::new();
+    for epoch in state.epoch..cfg.train.epochs {
+        let t_epoch = Instant::now();
+        let loader = Loader::new(
+            det.prep.clone(),
+            augments.clone(),
+            opts.train.clone(),
+            LoaderOptions {
+                batch_size: bs,
+                train: true,
+                seed: cfg.train.seed,
+                epoch: epoch as u64,
+                prefetch: cfg.train.prefetch,
+                drop_last: true,
+            },
+        );
+        let batches = loader.num_batches;
+        let mut sum = 0.0;
+        let mut n = 0usize;
+        let mut t_wait = Instant::now();
+        let mut waited = 0.0;
+        let mut term_sums: Vec<(&'static str, f64)> = Vec::new();
+        for (bi, batch) in loader.enumerate() {
+            let batch = batch?;
+            if batch.num_pillars < 2 {
+                // Batch norm cannot train on (almost) nothing: frames without points in range.
+                tracing::warn!("skipping a batch with {} pillars (frames without points in range?)", batch.num_pillars);
+                t_wait = Instant::now();
+                continue;
+            }
+            let wait = t_wait.elapsed().as_secs_f64();
+            waited += wait;
+            let t_step = Instant::now();
+            let (lr, beta1) = schedule.at(optim.step as usize);
+            let x = batch.inputs.to_device(opts.device);
+            let targets = batch.targets.as_ref().ok_or_else(|| NnError::Loader("batch without targets".into()))?;
+            let t = targets.to_device(opts.device);
+            let out = det.forward_t(&x, true);
+            let losses = det.loss(&out, &t);
+            optim.zero_grad();
+            losses.total.backward();
+            let grad_norm = optim.clip_grad_norm(cfg.train.grad_clip);
+            let loss = losses.total.double_value(&[]);
+            if !loss.is_finite() || !grad_norm.is_finite() {
+                return Err(NnError::Diverged(format!(
+                    "loss {loss}, gradient norm {grad_norm} at epoch {epoch}, batch {bi}"
+                )));
+            }
+            optim.update(lr, beta1);
+            sum += loss;
+            n += 1;
+            let info = StepInfo {
+                epoch,
+                epochs: cfg.train.epochs,
+                batch: bi,
+                batches,
+                step: optim.step,
+                lr,
+                loss,
+                terms: losses.terms.iter().map(|(k, v)| (*k, v.double_value(&[]))).collect(),
+                grad_norm,
+                step_seconds: t_step.elapsed().as_secs_f64(),
+                wait_seconds: wait,
+            };
+            if term_sums.is_empty() {
+                term_sums = info.terms.iter().map(|(k, _)| (*k, 0.0)).collect();
+            }
+            for (acc, (_, v)) in term_sums.iter_mut().zip(&info.terms) {
+                acc.1 += v;
+            }
+            on_event(Event::Step(&info));
+            t_wait = Instant::now();
+        }
+        let seconds = t_epoch.elapsed().as_secs_f64();
+        let mean_loss = sum / n.max(1) as f64;
+        state.epoch = epoch + 1;
+        state.step = optim.step;
+        state.train_seconds += seconds;
+        state.last_loss = Some(mean_loss);
+        let mean_terms = term_sums.iter().map(|(k, v)| (*k, v / n.max(1) as f64)).collect();
+        on_event(Event::EpochEnd { epoch, mean_loss, mean_terms, seconds, data_wait_seconds: waited });
+        let last = epoch + 1 == cfg.train.epochs;
+        let mut log = EpochLog { epoch: epoch + 1, mean_loss, seconds, eval: None };
+        if let Some(val) = opts.val.as_ref().filter(|v| !v.is_empty()) {
+            let every = cfg.train.eval_every;
+            if last || (every > 0 && (epoch + 1) % every == 0) {
+                let (summary, full) = evaluate_subset(&det, val, bs)?;
+                let json = serde_json::to_vec_pretty(&full).unwrap_or_default();
+                pi3det_data::io::write_atomic(
+                    &opts.out_dir.join(format!("eval_epoch_{}.json", epoch + 1)),
+                    &json,
+                    true,
+                )?;
+                on_event(Event::Eval { epoch, summary: &summary });
+                log.eval = Some(summary);
+            }
+        }
+        let every = cfg.train.ckpt_every;
+        if !last && every > 0 && (epoch + 1) % every == 0 {
+            let path = opts.out_dir.join(format!("checkpoint_epoch_{}.safetensors", epoch + 1));
+            checkpoint::save(&path, &det, Some(optim.state()), &state)?;
+            on_event(Event::Checkpoint { path: &path });
+            saved.push(path);
+            while saved.len() > cfg.train.keep_checkpoints.max(1) {
+                let old = saved.remove(0);
+                let _ = std::fs::remove_file(old);
+            }
+        }
+        report.epochs.push(log);
+    }
+    let final_path = opts.out_dir.join("final.safetensors");
+    checkpoint::save(&final_path, &det, None, &state)?;
+    on_event(Event::Checkpoint { path: &final_path });
+    report.final_checkpoint = final_path;
+    report.train_seconds = state.train_seconds;
+    report.steps = state.step;
+    report.final_eval = report.epochs.last().and_then(|e| e.eval.clone());
+    let json = serde_json::to_vec_pretty(&report).unwrap_or_default();
+    pi3det_data::io::write_atomic(&opts.out_dir.join("train_report.json"), &json, true)?;
+    Ok(report)
+}

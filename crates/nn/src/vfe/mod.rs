@@ -1,0 +1,5 @@
+//! Voxel / pillar feature encoders.
+
+pub mod pillar_vfe;
+
+pub use pillar_vfe::{PillarVfe, PillarVfeConfig};

@@ -1,0 +1,52 @@
+//! The shipped presets build, and the CPU ones run a frame end to end (pillarize → network →
+//! decode → NMS) with the right shapes.
+
+use std::path::Path;
+
+use pi3det_nn::augment::Sample;
+use pi3det_nn::{Detector, DetectorConfig};
+use tch::Device;
+
+fn preset(name: &str) -> DetectorConfig {
+    DetectorConfig::from_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs").join(name)).unwrap()
+}
+
+fn frame() -> Sample {
+    // A ground plane and a box-shaped cluster of points.
+    let mut points = Vec::new();
+    for i in 0..200 {
+        for j in 0..50 {
+            points.push([i as f32 * 0.3 - 30.0, j as f32 * 0.5 - 12.0, 0.0, 0.2]);
+        }
+    }
+    for k in 0..300 {
+        let t = k as f32 / 300.0;
+        points.push([10.0 + 4.0 * t, 5.0 + (k % 3) as f32 * 0.9, 0.2 + 1.4 * t, 0.6]);
+    }
+    Sample { points, ..Default::default() }
+}
+
+#[test]
+fn presets_build_and_run() {
+    tch::set_num_threads(1);
+    let paper = Detector::new(&preset("pointpillars_paper.toml"), Device::Cpu).unwrap();
+    let anchors = paper.prep.anchors.as_ref().unwrap();
+    assert_eq!((anchors.h, anchors.w, anchors.per_location), (472, 472, 4));
+    assert!(paper.num_parameters() > 4_000_000, "OpenPCDet's PointPillars has 4.8 M parameters");
+    for name in ["pointpillars_cpu.toml", "centerpoint_cpu.toml"] {
+        let cfg = preset(name);
+        let det = Detector::new(&cfg, Device::Cpu).unwrap();
+        let s = frame();
+        let p = det.prep.pillarizer().unwrap().run(&s.points, cfg.pillars.max_pillars_test);
+        assert!(p.len() > 100);
+        let dets = det.predict(&det.prep.collate_inputs(&[&p]));
+        assert_eq!(dets.len(), 1);
+        assert!(dets[0].len() <= cfg.post.nms_post_max, "{name}");
+        assert!(dets[0].iter().all(|d| d.score >= cfg.post.score_threshold && d.box3d.dx > 0.0), "{name}");
+        // A frame without a single point in range is not an error.
+        let empty = det.prep.pillarizer().unwrap().run(&[[500.0, 0.0, 0.0, 0.0]], cfg.pillars.max_pillars_test);
+        assert!(empty.is_empty());
+        let dets = det.predict(&det.prep.collate_inputs(&[&empty, &p]));
+        assert_eq!(dets.len(), 2);
+    }
+}
