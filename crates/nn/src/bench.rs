@@ -114,9 +114,7 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
     let x = prep.collate_inputs(&pillars.iter().collect::<Vec<_>>());
     let t = prep.collate_targets(&targets.iter().collect::<Vec<_>>());
     let (xd, td) = (x.to_device(opts.device), t.to_device(opts.device));
-    let ptrs: Vec<usize> = det.vs.trainable_variables().iter().map(|v| v.data_ptr() as usize).collect();
-    let params = det.vs.variables().into_iter().filter(|(_, v)| ptrs.contains(&(v.data_ptr() as usize))).collect();
-    let mut optim = Optimizer::new(params, &cfg.train);
+    let mut optim = Optimizer::new(det.named_trainables(), &cfg.train);
     let sync = || {
         if opts.device.is_cuda() {
             tch::Cuda::synchronize(0);

@@ -27,7 +27,7 @@ pub struct DeviceArgs {
     #[arg(long, default_value = "auto")]
     pub device: DeviceChoice,
     /// libtorch intra-op threads on the CPU [default: the config's `train.threads`, else
-    /// $PI3DET_TORCH_THREADS, else 1 — one was faster than two on a busy two-core machine].
+    /// $PI3DET_TORCH_THREADS, else every core; on a machine busy with other work 1 can be faster].
     #[arg(long, value_name = "N")]
     pub torch_threads: Option<usize>,
 }
@@ -296,23 +296,25 @@ pub fn format_latency(l: &Latency) -> String {
 /// the vehicle, evaluate on all three platforms and print the table (Pi3DET's motivation).
 #[derive(clap::Args, Debug, Clone)]
 pub struct DemoArgs {
-    /// Working folder (data, checkpoints, reports).
+    /// Working folder: the demo (re)writes its data/, pointpillars_vehicle/ and reports there.
     #[arg(long, default_value = "runs/demo")]
     pub out: PathBuf,
     /// Detector config [default: the built-in CPU preset, configs/pointpillars_cpu.toml].
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Vehicle sequences to simulate (a quarter go to validation) and frames per sequence.
-    #[arg(long, default_value_t = 12)]
+    #[arg(long, default_value_t = 16)]
     pub vehicle_sequences: u32,
-    #[arg(long, default_value_t = 40)]
+    #[arg(long, default_value_t = 30)]
     pub frames: u32,
-    /// Drone and quadruped sequences (validation only matters; a quarter go to validation).
+    /// Drone and quadruped sequences (a quarter go to validation; the rest are there for
+    /// adaptation, which trains on unlabelled target frames).
     #[arg(long, default_value_t = 4)]
     pub other_sequences: u32,
-    /// Override the config's epochs.
-    #[arg(long)]
-    pub epochs: Option<usize>,
+    /// Training epochs: 10 take about ten minutes on two cores; the preset's own schedule
+    /// (`train.epochs`) is used with `--epochs 0`.
+    #[arg(long, default_value_t = 10)]
+    pub epochs: usize,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Reuse data and checkpoint already in the working folder.
@@ -337,8 +339,8 @@ pub fn run_demo(args: &DemoArgs) -> Result<()> {
         Some(p) => DetectorConfig::from_file(p)?,
         None => DetectorConfig::from_toml_str(CPU_PRESET)?,
     };
-    if let Some(e) = args.epochs {
-        cfg.train.epochs = e;
+    if args.epochs > 0 {
+        cfg.train.epochs = args.epochs;
     }
     cfg.validate()?;
     let device = args.device.setup(cfg.train.threads)?;
@@ -348,8 +350,11 @@ pub fn run_demo(args: &DemoArgs) -> Result<()> {
         pi3det_sim::PlatformPlan::new(Platform::Quadruped, args.other_sequences, args.frames),
         pi3det_sim::PlatformPlan::new(Platform::Drone, args.other_sequences, args.frames),
     ];
+    // The marker records what was simulated, so --reuse never mixes data of other settings.
     let done_marker = data.join(".complete");
-    if !(args.reuse && done_marker.exists()) {
+    let plan_text = format!("{plans:?} seed {}\n", args.seed);
+    let reuse_data = args.reuse && std::fs::read_to_string(&done_marker).is_ok_and(|t| t == plan_text);
+    if !reuse_data {
         eprintln!(
             "simulating {} vehicle, {} quadruped and {} drone sequences of {} frames…",
             args.vehicle_sequences, args.other_sequences, args.other_sequences, args.frames
@@ -366,16 +371,20 @@ pub fn run_demo(args: &DemoArgs) -> Result<()> {
         pi3det_sim::export(&pi3det_sim::SimConfig::default(), &plans, &opts, &mut |_, _| bar.inc(1))
             .map_err(|e| NnError::Input(format!("simulation: {e}")))?;
         bar.finish_and_clear();
-        pi3det_data::io::write_atomic(&done_marker, b"", true)?;
+        pi3det_data::io::write_atomic(&done_marker, plan_text.as_bytes(), true)?;
     }
     let root = |p: Platform, split: &str| data.join(p.as_str()).join(split);
     let ckpt_dir = args.out.join("pointpillars_vehicle");
     let final_ckpt = ckpt_dir.join("final.safetensors");
-    if !(args.reuse && final_ckpt.exists()) {
+    let mut cfg_train = cfg.clone();
+    cfg_train.train.eval_every = 0;
+    // Reuse a checkpoint only when it was trained on this data with this config.
+    let reuse_ckpt = reuse_data
+        && final_ckpt.exists()
+        && checkpoint::load(&final_ckpt).is_ok_and(|c| c.config.to_toml() == cfg_train.to_toml());
+    if !reuse_ckpt {
         let train = open_subset(&root(Platform::Vehicle, "train"), Some("train"), None, cfg.train.max_train_frames)?;
         eprintln!("training {} on {} vehicle frames…", cfg.name, train.len());
-        let mut cfg_train = cfg.clone();
-        cfg_train.train.eval_every = 0;
         train_with_progress(
             TrainOptions { config: cfg_train, train, val: None, out_dir: ckpt_dir.clone(), device, resume: None },
             false,

@@ -111,7 +111,7 @@ pub fn frame_to_sample(frame: &Frame, cfg: &DetectorConfig, min_points: usize) -
         boxes.push(b);
         classes.push(k);
     }
-    Sample { points, boxes, classes, platform_jitter: None }
+    Sample { points, boxes, classes, platform_jitter: None, sensor_z: cfg.shift_z }
 }
 
 /// Per-frame RNG seed from the run seed, epoch and frame index (splitmix64).

@@ -249,6 +249,13 @@ impl Detector {
         self.vs.trainable_variables().iter().map(|t| t.numel() as i64).sum()
     }
 
+    /// The trainable variables by name (batch-norm running statistics are not among them), for
+    /// an optimiser that keeps its moments under the same names in checkpoints.
+    pub fn named_trainables(&self) -> Vec<(String, Tensor)> {
+        let ptrs: Vec<usize> = self.vs.trainable_variables().iter().map(|t| t.data_ptr() as usize).collect();
+        self.vs.variables().into_iter().filter(|(_, t)| ptrs.contains(&(t.data_ptr() as usize))).collect()
+    }
+
     /// BEV features `[B, C, H, W]` of a batch.
     pub fn bev_features(&self, x: &Inputs, train: bool) -> Tensor {
         let pillar = self.vfe.forward_t(&x.features, train);

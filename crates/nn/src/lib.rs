@@ -20,8 +20,7 @@
 //!
 //! Devices: [`device`] picks CUDA when libtorch's CUDA library loads and finds a GPU
 //! (`--device auto`), else the CPU; on the CPU the BEV network runs channels-last (oneDNN) and
-//! libtorch uses one thread on machines with up to two cores (faster than two on a busy two-core
-//! machine, see [`device::default_threads`]).
+//! libtorch uses every core unless told otherwise ([`device::default_threads`]).
 
 pub mod augment;
 pub mod backbone_2d;

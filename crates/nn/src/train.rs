@@ -131,13 +131,6 @@ pub fn build_database(cfg: &DetectorConfig, train: &Subset, gs: &GtSamplingConfi
     Ok(db)
 }
 
-/// The trainable variables by name.
-fn named_trainables(det: &Detector) -> Vec<(String, tch::Tensor)> {
-    let trainable: Vec<tch::Tensor> = det.vs.trainable_variables();
-    let ptrs: Vec<usize> = trainable.iter().map(|t| t.data_ptr() as usize).collect();
-    det.vs.variables().into_iter().filter(|(_, t)| ptrs.contains(&(t.data_ptr() as usize))).collect()
-}
-
 /// Evaluates a detector on a subset; ground truth restricted to the detector's BEV range.
 pub fn evaluate_subset(
     det: &Detector,
@@ -162,7 +155,7 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
     pi3det_data::io::write_atomic(&opts.out_dir.join("config.toml"), cfg.to_toml().as_bytes(), true)?;
     tch::manual_seed(cfg.train.seed as i64);
     let mut det = Detector::new(cfg, opts.device)?;
-    let mut optim = Optimizer::new(named_trainables(&det), &cfg.train);
+    let mut optim = Optimizer::new(det.named_trainables(), &cfg.train);
     let mut state = TrainState::default();
     if let Some(path) = &opts.resume {
         let ck = checkpoint::load(path)?;

@@ -88,11 +88,7 @@ fn overfit(head: HeadConfig, steps: usize) {
     let pillars = prep.pillarizer().unwrap().run(&sample.points, cfg.pillars.max_pillars_train);
     let inputs = prep.collate_inputs(&[&pillars]);
     let targets = prep.collate_targets(&[&prep.targets(&sample)]);
-    let params: Vec<(String, tch::Tensor)> = {
-        let ptrs: Vec<usize> = det.vs.trainable_variables().iter().map(|t| t.data_ptr() as usize).collect();
-        det.vs.variables().into_iter().filter(|(_, t)| ptrs.contains(&(t.data_ptr() as usize))).collect()
-    };
-    let mut opt = Optimizer::new(params, &cfg.train);
+    let mut opt = Optimizer::new(det.named_trainables(), &cfg.train);
     let schedule = OneCycle::new(&cfg.train, steps);
     let mut first = None;
     let mut last = 0.0;

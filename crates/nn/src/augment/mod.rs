@@ -33,6 +33,9 @@ pub struct Sample {
     pub classes: Vec<usize>,
     /// Roll and pitch (rad) Random Platform Jitter applied, for a rotation-regression loss.
     pub platform_jitter: Option<[f64; 2]>,
+    /// Height of the LiDAR origin in this sample's frame (the config's `shift_z`): the platform
+    /// rotates about its sensor, not about the shifted origin.
+    pub sensor_z: f64,
 }
 
 /// One augmentation.
@@ -164,7 +167,7 @@ pub(crate) mod test_util {
         for i in 0..100 {
             points.push([i as f32 * 0.3 - 15.0, (i % 7) as f32 - 3.0, -1.9, 0.1]);
         }
-        Sample { points, boxes, classes: vec![0, 1], platform_jitter: None }
+        Sample { points, boxes, classes: vec![0, 1], platform_jitter: None, sensor_z: 0.0 }
     }
 
     pub fn rng(seed: u64) -> ChaCha8Rng {

@@ -28,25 +28,27 @@ impl Default for RandomPlatformJitterConfig {
 pub struct RandomPlatformJitter(pub RandomPlatformJitterConfig);
 
 impl RandomPlatformJitter {
-    /// Applies the jitter of the given roll and pitch (rad).
+    /// Applies the jitter of the given roll and pitch (rad), rotating about the sensor origin
+    /// `(0, 0, sensor_z)`.
     pub fn jitter(s: &mut Sample, roll: f64, pitch: f64) {
         // R = Rz(0) · Ry(pitch) · Rx(roll) (nalgebra's euler angles are extrinsic x, y, z).
         let q = nalgebra::UnitQuaternion::from_euler_angles(roll, pitch, 0.0);
         let m = q.to_rotation_matrix();
         let r = m.matrix();
         let rf: [[f32; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| r[(i, j)] as f32));
+        let z0 = s.sensor_z as f32;
         for p in &mut s.points {
-            let (x, y, z) = (p[0], p[1], p[2]);
+            let (x, y, z) = (p[0], p[1], p[2] - z0);
             p[0] = rf[0][0] * x + rf[0][1] * y + rf[0][2] * z;
             p[1] = rf[1][0] * x + rf[1][1] * y + rf[1][2] * z;
-            p[2] = rf[2][0] * x + rf[2][1] * y + rf[2][2] * z;
+            p[2] = rf[2][0] * x + rf[2][1] * y + rf[2][2] * z + z0;
         }
         let yaw = RollPitchYaw::of(&q).yaw_rad;
         for b in &mut s.boxes {
-            let c = q * nalgebra::Point3::new(b.x, b.y, b.z);
+            let c = q * nalgebra::Point3::new(b.x, b.y, b.z - s.sensor_z);
             b.x = c.x;
             b.y = c.y;
-            b.z = c.z;
+            b.z = c.z + s.sensor_z;
             b.heading += yaw;
         }
         s.platform_jitter = Some([roll, pitch]);
@@ -92,5 +94,12 @@ mod tests {
         let mut t = Sample { points: vec![[0.0, 10.0, 0.0, 0.0]], ..Default::default() };
         RandomPlatformJitter::jitter(&mut t, 3f64.to_radians(), 0.0);
         assert!((t.points[0][2] as f64 - 10.0 * 3f64.to_radians().sin()).abs() < 1e-5);
+        // The pivot is the sensor: with the frame shifted up by 1.9 m, the sensor's own position
+        // stays put and a point level with it moves as before.
+        let mut t =
+            Sample { points: vec![[0.0, 0.0, 1.9, 0.0], [10.0, 0.0, 1.9, 0.0]], sensor_z: 1.9, ..Default::default() };
+        RandomPlatformJitter::jitter(&mut t, 0.0, 2f64.to_radians());
+        assert!((t.points[0][2] - 1.9).abs() < 1e-6 && t.points[0][0].abs() < 1e-6);
+        assert!((t.points[1][2] as f64 - 1.9 + 10.0 * 2f64.to_radians().sin()).abs() < 1e-5);
     }
 }

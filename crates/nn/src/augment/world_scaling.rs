@@ -37,6 +37,7 @@ impl WorldScaling {
             b.dy *= f;
             b.dz *= f;
         }
+        s.sensor_z *= f;
     }
 }
 
