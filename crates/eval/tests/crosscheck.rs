@@ -95,6 +95,11 @@ fn read_json<T: serde::de::DeserializeOwned>(p: &Path) -> T {
 #[test]
 fn agrees_with_the_reference_evaluator() {
     let Some(py) = python() else {
+        // CI installs the venv (scripts/test), so there a missing one is a failure, not a skip.
+        assert!(
+            std::env::var_os("CI").is_none(),
+            ".venv-crosscheck not found at the repository root in CI: scripts/crosscheck_eval/setup.sh failed"
+        );
         eprintln!("notice: .venv-crosscheck not found at the repository root; run scripts/crosscheck_eval/setup.sh to cross-check against the reference evaluator");
         return;
     };
