@@ -311,7 +311,7 @@ pub struct DemoArgs {
     /// adaptation, which trains on unlabelled target frames).
     #[arg(long, default_value_t = 4)]
     pub other_sequences: u32,
-    /// Training epochs: 10 take about ten minutes on two cores; the preset's own schedule
+    /// Training epochs: 10 take about eleven minutes on two cores; the preset's own schedule
     /// (`train.epochs`) is used with `--epochs 0`.
     #[arg(long, default_value_t = 10)]
     pub epochs: usize,

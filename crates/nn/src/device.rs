@@ -95,10 +95,10 @@ pub fn resolve(choice: DeviceChoice) -> Result<Device> {
 }
 
 /// Intra-op threads for libtorch on the CPU: the config's value, else the `PI3DET_TORCH_THREADS`
-/// environment variable, else every core. Measured on an idle two-core machine, a CPU-preset
-/// training step took 0.72 s with two threads and 1.05 s with one (an epoch of the demo 60 s vs
-/// 106 s; the loader thread needs little); on a machine busy with other work one thread can be
-/// faster, which the variable or `--torch-threads 1` selects.
+/// environment variable, else every core. Measured on an idle two-core machine with two threads,
+/// an epoch of the demo (360 frames, CPU preset at batch 1) took 54–65 s, the loader thread
+/// keeping up (under a second of waiting per epoch); on a machine busy with other work one
+/// thread can be faster, which the variable or `--torch-threads 1` selects.
 pub fn default_threads(configured: usize) -> usize {
     if configured > 0 {
         return configured;
