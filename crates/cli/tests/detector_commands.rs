@@ -57,6 +57,12 @@ fn demo_then_detect_then_eval() {
     for f in ["detections.jsonl", "result.pkl", "latency.json"] {
         assert!(det.join(f).is_file(), "detect did not write {f}");
     }
+    // A second run into the same folder replaces nothing unless asked.
+    let detect_args = ["detect", "--ckpt", &s(&ckpt), "--data", &s(&val), "--out", &s(&det), "--device", "cpu"];
+    let again = pi3det(&detect_args);
+    assert!(!again.status.success(), "detect replaced an earlier run's output");
+    assert!(String::from_utf8_lossy(&again.stderr).contains("--overwrite"));
+    ok(&pi3det(&[&detect_args[..], &["--overwrite"]].concat()), "detect --overwrite");
     for f in ["result.pkl", "detections.jsonl"] {
         let out = ok(&pi3det(&["eval", "--gt", &s(&val), "--det", &s(&det.join(f)), "--json"]), "eval");
         let _: serde_json::Value = serde_json::from_str(&out).unwrap_or_else(|e| panic!("eval --json: {e}\n{out}"));

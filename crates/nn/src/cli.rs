@@ -105,6 +105,9 @@ pub struct TrainArgs {
     /// Continue from a checkpoint of this config.
     #[arg(long, value_name = "CKPT")]
     pub resume: Option<PathBuf>,
+    /// Replace the model an earlier run left in OUT.
+    #[arg(long)]
+    pub overwrite: bool,
     /// Override the config's epochs.
     #[arg(long)]
     pub epochs: Option<usize>,
@@ -189,6 +192,9 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         cfg.train.seed = s;
     }
     cfg.validate()?;
+    if args.resume.is_none() && !args.overwrite {
+        refuse_existing(&args.out, &["final.safetensors", "checkpoint_epoch_1.safetensors"])?;
+    }
     let device = args.device.setup(cfg.train.threads)?;
     let train = args.data.subset("train")?;
     let val = match &args.val {
@@ -238,11 +244,28 @@ pub struct DetectArgs {
     /// Also evaluate against the data's ground truth (within the detector's range) and print it.
     #[arg(long)]
     pub eval: bool,
+    /// Replace detections an earlier run left in OUT.
+    #[arg(long)]
+    pub overwrite: bool,
     #[command(flatten)]
     pub device: DeviceArgs,
 }
 
+/// Errors when `dir` already holds one of `files` (the output of an earlier run).
+fn refuse_existing(dir: &Path, files: &[&str]) -> Result<()> {
+    match files.iter().map(|f| dir.join(f)).find(|p| p.exists()) {
+        Some(p) => Err(NnError::Input(format!(
+            "{} already exists (an earlier run's output); pass --overwrite to replace it",
+            p.display()
+        ))),
+        None => Ok(()),
+    }
+}
+
 pub fn run_detect(args: &DetectArgs) -> Result<()> {
+    if !args.overwrite {
+        refuse_existing(&args.out, &["detections.jsonl", "result.pkl", "latency.json"])?;
+    }
     let device = args.device.setup(0)?;
     let mut ck = checkpoint::load(&args.ckpt)?;
     if let Some(t) = args.score_threshold {
