@@ -1,6 +1,7 @@
 //! The detector commands end to end through the binary, at toy size: `pi3det demo` (simulate,
 //! train one epoch, evaluate per platform), then `pi3det detect` on its checkpoint and `pi3det
-//! eval` on the files detect wrote; and clear errors for a missing checkpoint.
+//! eval` on the files detect wrote; earlier output kept unless `--overwrite`; and clear errors
+//! for a missing checkpoint.
 #![cfg(feature = "nn")]
 
 use std::path::Path;
@@ -49,20 +50,26 @@ fn demo_then_detect_then_eval() {
     let ckpt = dir.join("pointpillars_vehicle/final.safetensors");
     let val = dir.join("data/vehicle/val");
     let det = dir.join("det");
-    let out = ok(
-        &pi3det(&["detect", "--ckpt", &s(&ckpt), "--data", &s(&val), "--out", &s(&det), "--device", "cpu"]),
-        "detect",
-    );
+    let detect_args = ["detect", "--ckpt", &s(&ckpt), "--data", &s(&val), "--out", &s(&det), "--device", "cpu"];
+    let out = ok(&pi3det(&detect_args), "detect");
     assert!(out.contains("latency per frame"), "{out}");
     for f in ["detections.jsonl", "result.pkl", "latency.json"] {
         assert!(det.join(f).is_file(), "detect did not write {f}");
     }
-    // A second run into the same folder replaces nothing unless asked.
-    let detect_args = ["detect", "--ckpt", &s(&ckpt), "--data", &s(&val), "--out", &s(&det), "--device", "cpu"];
+    // A second run into the same folder replaces nothing unless asked; nor does training into a
+    // folder that holds a model.
     let again = pi3det(&detect_args);
     assert!(!again.status.success(), "detect replaced an earlier run's output");
     assert!(String::from_utf8_lossy(&again.stderr).contains("--overwrite"));
     ok(&pi3det(&[&detect_args[..], &["--overwrite"]].concat()), "detect --overwrite");
+    let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/pointpillars_cpu.toml");
+    let ckpt_dir = ckpt.parent().unwrap();
+    let train =
+        pi3det(&["train", "--config", &s(&config), "--data", &s(&val), "--out", &s(ckpt_dir), "--device", "cpu"]);
+    assert!(!train.status.success(), "train replaced an earlier run's model");
+    let err = String::from_utf8_lossy(&train.stderr);
+    assert!(err.contains(".safetensors") && err.contains("--overwrite"), "{err}");
+    assert!(ckpt.is_file());
     for f in ["result.pkl", "detections.jsonl"] {
         let out = ok(&pi3det(&["eval", "--gt", &s(&val), "--det", &s(&det.join(f)), "--json"]), "eval");
         let _: serde_json::Value = serde_json::from_str(&out).unwrap_or_else(|e| panic!("eval --json: {e}\n{out}"));

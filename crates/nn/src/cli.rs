@@ -193,7 +193,8 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     }
     cfg.validate()?;
     if args.resume.is_none() && !args.overwrite {
-        refuse_existing(&args.out, &["final.safetensors", "checkpoint_epoch_1.safetensors"])?;
+        // Any checkpoint: older epochs' files are deleted as training goes on.
+        refuse_existing(&args.out, |name| name.ends_with(".safetensors"))?;
     }
     let device = args.device.setup(cfg.train.threads)?;
     let train = args.data.subset("train")?;
@@ -251,9 +252,11 @@ pub struct DetectArgs {
     pub device: DeviceArgs,
 }
 
-/// Errors when `dir` already holds one of `files` (the output of an earlier run).
-fn refuse_existing(dir: &Path, files: &[&str]) -> Result<()> {
-    match files.iter().map(|f| dir.join(f)).find(|p| p.exists()) {
+/// Errors when `dir` already holds a file an earlier run wrote (`is_output` on its name); a
+/// missing `dir` holds none.
+fn refuse_existing(dir: &Path, is_output: impl Fn(&str) -> bool) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(dir) else { return Ok(()) };
+    match entries.flatten().map(|e| e.path()).find(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(&is_output)) {
         Some(p) => Err(NnError::Input(format!(
             "{} already exists (an earlier run's output); pass --overwrite to replace it",
             p.display()
@@ -264,7 +267,7 @@ fn refuse_existing(dir: &Path, files: &[&str]) -> Result<()> {
 
 pub fn run_detect(args: &DetectArgs) -> Result<()> {
     if !args.overwrite {
-        refuse_existing(&args.out, &["detections.jsonl", "result.pkl", "latency.json"])?;
+        refuse_existing(&args.out, |name| ["detections.jsonl", "result.pkl", "latency.json"].contains(&name))?;
     }
     let device = args.device.setup(0)?;
     let mut ck = checkpoint::load(&args.ckpt)?;
