@@ -3,12 +3,17 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
+use pi3det_data::FrameInfo;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::breakdown::{breakdown, format_breakdown, Breakdown};
 use crate::classes::Overlaps;
 use crate::detections::Detections;
 use crate::error::EvalError;
 use crate::options::EvalOptions;
 use crate::report::format_report;
-use crate::run::{evaluate_dataset, EvalReport};
+use crate::run::{evaluate, EvalReport};
 
 /// Evaluate detections with the KITTI protocol (OpenPCDet / mmdet3d numbers: bbox, BEV, 3D and
 /// AOS average precision, R11 and R40, easy / moderate / hard).
@@ -47,6 +52,11 @@ pub struct EvalArgs {
     /// Do not add per-platform and per-sequence results.
     #[arg(long)]
     pub no_breakdown: bool,
+    /// Also print the error breakdown after the report (AP_R40 and recall by distance and by
+    /// points per box, found-but-misplaced misses, localisation errors per class at the strict
+    /// thresholds); with --json / --output it is the field "breakdown".
+    #[arg(long)]
+    pub breakdown: bool,
     /// Image size used to clip projected 2D boxes of LiDAR detections on KITTI frames when the
     /// detections carry none.
     #[arg(long, num_args = 2, value_names = ["WIDTH", "HEIGHT"])]
@@ -111,35 +121,78 @@ impl EvalArgs {
 
     /// Reads both inputs and evaluates.
     pub fn evaluate(&self) -> Result<EvalReport, EvalError> {
+        let (infos, dets, opts) = self.read()?;
+        timed(|| evaluate(&infos, &dets, &opts))
+    }
+
+    /// Reads both inputs once, evaluates and, with `--breakdown`, computes the error breakdown.
+    pub fn evaluate_with_breakdown(&self) -> Result<(EvalReport, Option<Breakdown>), EvalError> {
+        let (infos, dets, opts) = self.read()?;
+        let report = timed(|| evaluate(&infos, &dets, &opts))?;
+        let extra = if self.breakdown { Some(breakdown(&infos, &dets, &opts)?) } else { None };
+        Ok((report, extra))
+    }
+
+    fn read(&self) -> Result<(Vec<FrameInfo>, Detections, EvalOptions), EvalError> {
         let opts = self.options()?;
         let t = Instant::now();
         let ds = pi3det_data::open(&self.gt)?;
+        let infos: Vec<FrameInfo> = (0..ds.len()).into_par_iter().map(|i| ds.info(i)).collect::<Result<_, _>>()?;
         let dets = Detections::read(&self.det)?;
         tracing::info!(
             "read {} ground-truth frames and {} detections in {} frames ({:.3} s)",
-            ds.len(),
+            infos.len(),
             dets.num_detections(),
             dets.frames.len(),
             t.elapsed().as_secs_f64()
         );
-        let t = Instant::now();
-        let report = evaluate_dataset(ds.as_ref(), &dets, &opts)?;
-        tracing::info!("evaluated in {:.3} s", t.elapsed().as_secs_f64());
-        Ok(report)
+        Ok((infos, dets, opts))
     }
+}
+
+fn timed(f: impl FnOnce() -> Result<EvalReport, EvalError>) -> Result<EvalReport, EvalError> {
+    let t = Instant::now();
+    let report = f()?;
+    tracing::info!("evaluated in {:.3} s", t.elapsed().as_secs_f64());
+    Ok(report)
+}
+
+/// The `--json` document: the report's fields, plus `breakdown` with `--breakdown`.
+#[derive(Serialize)]
+struct JsonOutput<'a> {
+    #[serde(flatten)]
+    report: &'a EvalReport,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    breakdown: Option<&'a Breakdown>,
+}
+
+/// The text `pi3det eval` prints: the report, then the breakdown when there is one.
+pub fn format_output(report: &EvalReport, breakdown: Option<&Breakdown>) -> String {
+    let mut out = format_report(report);
+    if let Some(b) = breakdown {
+        out.push('\n');
+        out.push_str(&format_breakdown(b));
+    }
+    out
+}
+
+/// The JSON `pi3det eval --json` prints (and `--output` writes).
+pub fn json_output(report: &EvalReport, breakdown: Option<&Breakdown>) -> Result<String, EvalError> {
+    serde_json::to_string_pretty(&JsonOutput { report, breakdown })
+        .map_err(|e| EvalError::Input(format!("JSON output: {e}")))
 }
 
 /// Runs `pi3det eval`: prints the text report (or JSON with `--json`) to stdout.
 pub fn run(args: &EvalArgs) -> Result<(), EvalError> {
-    let report = args.evaluate()?;
-    let json = || serde_json::to_string_pretty(&report).map_err(|e| EvalError::Input(format!("JSON output: {e}")));
+    let (report, breakdown) = args.evaluate_with_breakdown()?;
+    let json = || json_output(&report, breakdown.as_ref());
     if let Some(path) = &args.output {
         std::fs::write(path, json()? + "\n").map_err(|e| EvalError::io(path, e))?;
     }
     if args.json {
         println!("{}", json()?);
     } else {
-        print!("{}", format_report(&report));
+        print!("{}", format_output(&report, breakdown.as_ref()));
     }
     Ok(())
 }
@@ -185,5 +238,59 @@ mod tests {
         assert_eq!(o.classes, ["Car", "Pedestrian"]);
         let c = Cli::try_parse_from(["x", "--gt", "g", "--det", "d", "--overlaps", "Sign=0.7"]).unwrap();
         assert!(c.eval.options().is_err());
+        assert!(!c.eval.breakdown);
+    }
+
+    /// A Pi3DET folder with stored point counts and JSON-lines detections, through the command's
+    /// own reading, text and JSON output.
+    #[test]
+    fn breakdown_flag_reads_files_and_adds_the_json_field() {
+        use pi3det_data::{Frame, FrameInfo, Object, Platform, PointCloud};
+        use pi3det_geometry::Box3d;
+
+        let dir = tempfile::tempdir().unwrap();
+        let gt = dir.path().join("gt");
+        let mut w = pi3det_data::pi3det::Pi3detWriter::create(&gt, "val", false).unwrap();
+        let mut lines = String::new();
+        for i in 0..3 {
+            let id = format!("{i:06}");
+            let mut info = FrameInfo::new(id.clone(), Default::default());
+            info.platform = Platform::Vehicle;
+            for (k, (x, n)) in [(10.0, 500), (30.0, 12)].into_iter().enumerate() {
+                let mut o = Object::new("Vehicle", Box3d::new(x, k as f64, -1.0, 3.9, 1.6, 1.5, 0.1));
+                o.num_points = Some(n);
+                info.objects.push(o);
+            }
+            w.write_frame(&Frame { info, points: PointCloud::from_xyzi(&[]) }).unwrap();
+            // Only the near car is detected, 0.5 m too high.
+            lines += &format!(
+                "{{\"frame_id\": \"{id}\", \"names\": [\"Vehicle\"], \"scores\": [0.9], \"boxes_lidar\": [[10, 0, -0.5, 3.9, 1.6, 1.5, 0.1]]}}\n"
+            );
+        }
+        w.finish().unwrap();
+        let det = dir.path().join("det.jsonl");
+        std::fs::write(&det, lines).unwrap();
+        let (g, d) = (gt.to_str().unwrap(), det.to_str().unwrap());
+        let args = Cli::try_parse_from(["x", "--gt", g, "--det", d, "--breakdown"]).unwrap().eval;
+        let (report, b) = args.evaluate_with_breakdown().unwrap();
+        let b = b.expect("--breakdown computes it");
+        let car = &b.classes[0];
+        assert_eq!(car.class, "Car");
+        assert_eq!((car.by_points[0].result.num_gt, car.by_points[2].result.num_gt, car.gt_without_points), (3, 3, 0));
+        assert_eq!((car.by_points[0].result.recall_bev, car.by_points[2].result.recall_bev), (Some(0.0), Some(1.0)));
+        assert_eq!((car.misplaced.missed_3d, car.misplaced.misplaced_3d), (6, 3));
+        assert!(format_output(&report, Some(&b)).contains("Error breakdown"));
+        let j: serde_json::Value = serde_json::from_str(&json_output(&report, Some(&b)).unwrap()).unwrap();
+        assert!(j["overall"]["classes"].is_array());
+        assert_eq!(j["breakdown"]["classes"][0]["by_distance"][2]["ap_bev_r40_pct"], serde_json::Value::Null);
+        let z = j["breakdown"]["classes"][0]["localisation"]["errors"]["z_m"]["median_abs"].as_f64().unwrap();
+        assert!((z - 0.5).abs() < 1e-9, "{z}");
+        // Without the flag: no breakdown, and the JSON is the report's alone.
+        let args = Cli::try_parse_from(["x", "--gt", g, "--det", d]).unwrap().eval;
+        let (report, b) = args.evaluate_with_breakdown().unwrap();
+        assert!(b.is_none());
+        let j: serde_json::Value = serde_json::from_str(&json_output(&report, None).unwrap()).unwrap();
+        assert!(j.get("breakdown").is_none());
+        assert_eq!(serde_json::from_value::<EvalReport>(j).unwrap(), report);
     }
 }

@@ -38,6 +38,18 @@ impl<'a> Camera<'a> {
         }
     }
 
+    /// Camera box back to the LiDAR frame (the inverse of `lidar_box`).
+    fn camera_to_lidar(&self, c: &CameraBox) -> Box3d {
+        match self {
+            Camera::Kitti(k) => k.camera_to_lidar(c),
+            Camera::Fake => {
+                let [l, h, w] = c.dimensions_lhw;
+                let [x, y, z] = c.location;
+                Box3d::new(z, -x, -y + 0.5 * h, l, w, h, -(c.rotation_y + std::f64::consts::FRAC_PI_2))
+            }
+        }
+    }
+
     /// BEV centre in the LiDAR frame of a camera box (for the range filter).
     fn lidar_xy(&self, c: &CameraBox) -> [f64; 2] {
         match self {
@@ -92,13 +104,29 @@ fn object(
     }
 }
 
+/// A kept ground truth in the LiDAR frame, for the error breakdown: its box and the point count
+/// the dataset stored.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct LidarGt {
+    pub box3d: Box3d,
+    pub num_points: Option<u32>,
+}
+
 pub(crate) fn ground_truth(info: &FrameInfo, f: &Filter) -> KittiFrame {
+    ground_truth_lidar(info, f).0
+}
+
+/// The ground truth in the reference's form and, for its objects (which come first, before the
+/// DontCare regions), their LiDAR boxes.
+pub(crate) fn ground_truth_lidar(info: &FrameInfo, f: &Filter) -> (KittiFrame, Vec<LidarGt>) {
     let cam = Camera::of(info);
     let mut objects = Vec::with_capacity(info.objects.len() + info.dont_care.len());
+    let mut lidar = Vec::with_capacity(info.objects.len());
     for o in &info.objects {
         if !f.in_range([o.box3d.x, o.box3d.y]) {
             continue;
         }
+        lidar.push(LidarGt { box3d: o.box3d, num_points: o.num_points });
         let name = f.names.map(&o.name);
         let c = cam.lidar_box(&o.box3d);
         let obj = match (cam, &o.kitti) {
@@ -115,7 +143,7 @@ pub(crate) fn ground_truth(info: &FrameInfo, f: &Filter) -> KittiFrame {
         let c = CameraBox { location: [-1000.0; 3], dimensions_lhw: [-1.0; 3], rotation_y: -10.0 };
         objects.push(object("DontCare".into(), &c, *bbox, -1.0, -1.0, -10.0, 0.0));
     }
-    KittiFrame { id: info.id.clone(), objects }
+    (KittiFrame { id: info.id.clone(), objects }, lidar)
 }
 
 /// OpenPCDet's image box of a camera box: the 8 corners projected with P2 divided by the
@@ -140,8 +168,15 @@ fn image_box(k: &KittiCalib, c: &CameraBox, image_size: [f64; 2]) -> [f64; 4] {
 }
 
 pub(crate) fn detections(info: &FrameInfo, dets: &[Detection], f: &Filter) -> KittiFrame {
+    detections_lidar(info, dets, f).0
+}
+
+/// The detections in the reference's form and each one's LiDAR box (given, or converted back
+/// from its camera box), in the same order.
+pub(crate) fn detections_lidar(info: &FrameInfo, dets: &[Detection], f: &Filter) -> (KittiFrame, Vec<Box3d>) {
     let cam = Camera::of(info);
     let mut objects = Vec::with_capacity(dets.len());
+    let mut lidar = Vec::with_capacity(dets.len());
     for d in dets {
         if f.score_threshold.is_some_and(|t| d.score < t) {
             continue;
@@ -160,6 +195,12 @@ pub(crate) fn detections(info: &FrameInfo, dets: &[Detection], f: &Filter) -> Ki
         if !f.in_range(xy) {
             continue;
         }
+        lidar.push(match (cam, d.lidar) {
+            // On KITTI frames the camera box is what is evaluated, so its LiDAR form is too.
+            (Camera::Kitti(_), _) if d.camera.is_some() => cam.camera_to_lidar(&c),
+            (_, Some(b)) => b,
+            (_, None) => cam.camera_to_lidar(&c),
+        });
         let name = f.names.map(&d.name);
         let obj = match cam {
             Camera::Kitti(k) => {
@@ -177,7 +218,7 @@ pub(crate) fn detections(info: &FrameInfo, dets: &[Detection], f: &Filter) -> Ki
         };
         objects.push(obj);
     }
-    KittiFrame { id: info.id.clone(), objects }
+    (KittiFrame { id: info.id.clone(), objects }, lidar)
 }
 
 #[cfg(test)]

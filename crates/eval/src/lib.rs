@@ -5,6 +5,10 @@
 //!   KITTI result folder or JSON lines — formats in [`detections`]) against ground-truth frames
 //!   of any `pi3det-data` reader, with [`EvalOptions`]; returns an [`EvalReport`] (serde).
 //! * [`format_report`]: OpenPCDet's text block plus the paper's "BEV / 3D" lines.
+//! * [`breakdown()`] / [`breakdown_dataset`]: the error breakdown (AP and recall by distance and
+//!   by points per box, found-but-misplaced misses, localisation errors) as a [`Breakdown`]
+//!   (serde); [`format_breakdown`] prints it; module [`mod@breakdown`] says how each figure is
+//!   made.
 //! * [`evaluate_kitti`]: the protocol itself on frames already in the reference's camera-frame
 //!   form ([`KittiFrame`]).
 //!
@@ -19,6 +23,7 @@
 
 pub mod anno;
 pub mod ap;
+pub mod breakdown;
 pub mod classes;
 mod convert;
 pub mod detections;
@@ -36,6 +41,10 @@ pub mod run;
 pub mod cli;
 
 pub use anno::{KittiFrame, KittiObject};
+pub use breakdown::{
+    breakdown, breakdown_dataset, format_breakdown, AxisError, BinResult, BoxErrors, Breakdown, ClassBreakdown,
+    DistanceBin, Localisation, Misplaced, PointsBin,
+};
 pub use classes::Overlaps;
 pub use detections::{Detection, Detections, JsonlFrame};
 pub use error::EvalError;

@@ -185,10 +185,15 @@ impl Pass<'_> {
         assigned.clear();
         assigned.resize(dt.len(), false);
         let mut out = Matched::default();
+        let mut visit = |i: usize, g: i8, det: Option<usize>| match det {
+            Some(j) => self.count(g, i, j, &mut out),
+            None if g == 0 => out.fn_ += 1,
+            None => {}
+        };
         match self.uniform_hit() {
-            Some(true) => self.match_uniform(t, assigned, valid, ignored, &mut out),
-            Some(false) => out.fn_ = gt.iter().filter(|&&g| g == 0).count() as u64,
-            None => self.match_sparse(t, assigned, &mut out),
+            Some(true) => self.match_uniform(t, assigned, valid, ignored, &mut visit),
+            Some(false) => gt.iter().enumerate().filter(|(_, &g)| g != -1).for_each(|(i, &g)| visit(i, g, None)),
+            None => self.match_sparse(t, assigned, &mut visit),
         }
         out.assigned_valid = assigned.iter().zip(dt).filter(|(&a, &s)| a && s == 0).count();
         if self.metric == 0 {
@@ -204,6 +209,22 @@ impl Pass<'_> {
                     }
                 }
             }
+        }
+        out
+    }
+
+    /// The PR pass's matching at score threshold `t`, per ground truth: the detection it took
+    /// (valid or ignored), `None` when it took none or takes no part (state −1). What the error
+    /// breakdown reads recall and misses from, so that they follow the protocol's matching.
+    pub fn assignment(&self, t: f64) -> Vec<Option<usize>> {
+        let (gt, dt) = (&self.states.gt, &self.states.dt);
+        let mut out = vec![None; gt.len()];
+        let mut assigned = vec![false; dt.len()];
+        let mut visit = |i: usize, _g: i8, det: Option<usize>| out[i] = det;
+        match self.uniform_hit() {
+            Some(true) => self.match_uniform(t, &mut assigned, &mut Vec::new(), &mut Vec::new(), &mut visit),
+            Some(false) => {}
+            None => self.match_sparse(t, &mut assigned, &mut visit),
         }
         out
     }
@@ -225,7 +246,7 @@ impl Pass<'_> {
         assigned: &mut [bool],
         valid: &mut Vec<usize>,
         ignored: &mut Vec<usize>,
-        out: &mut Matched,
+        visit: &mut impl FnMut(usize, i8, Option<usize>),
     ) {
         let (gt, dt, score) = (&self.states.gt, &self.states.dt, &self.frame.dt_score);
         valid.clear();
@@ -244,18 +265,15 @@ impl Pass<'_> {
             if g == -1 {
                 continue;
             }
-            match v.next().or_else(|| ig.next()) {
-                Some(&j) => {
-                    assigned[j] = true;
-                    self.count(g, i, j, out);
-                }
-                None if g == 0 => out.fn_ += 1,
-                None => {}
+            let det = v.next().or_else(|| ig.next()).copied();
+            if let Some(j) = det {
+                assigned[j] = true;
             }
+            visit(i, g, det);
         }
     }
 
-    fn match_sparse(&self, t: f64, assigned: &mut [bool], out: &mut Matched) {
+    fn match_sparse(&self, t: f64, assigned: &mut [bool], visit: &mut impl FnMut(usize, i8, Option<usize>)) {
         let (gt, dt, score) = (&self.states.gt, &self.states.dt, &self.frame.dt_score);
         let rows = &self.frame.overlaps[self.metric];
         for (i, &g) in gt.iter().enumerate() {
@@ -279,14 +297,10 @@ impl Pass<'_> {
                     took_ignored = true;
                 }
             }
-            match det {
-                None if g == 0 => out.fn_ += 1,
-                None => {}
-                Some(j) => {
-                    assigned[j] = true;
-                    self.count(g, i, j, out);
-                }
+            if let Some(j) = det {
+                assigned[j] = true;
             }
+            visit(i, g, det);
         }
     }
 }

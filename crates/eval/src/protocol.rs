@@ -117,24 +117,7 @@ pub fn evaluate_kitti(
             }
         }
     }
-    for (what, frames) in [("ground truth", gt), ("detection", dt)] {
-        for (f, frame) in frames.iter().enumerate() {
-            let bad = frame.objects.iter().find(|o| {
-                ![o.truncated, o.occluded, o.alpha, o.rotation_y, o.score]
-                    .iter()
-                    .chain(&o.bbox)
-                    .chain(&o.dimensions)
-                    .chain(&o.location)
-                    .all(|v| v.is_finite())
-            });
-            if let Some(o) = bad {
-                return Err(EvalError::Input(format!(
-                    "{what} frame {f} ({}): {} has a non-finite value",
-                    frame.id, o.name
-                )));
-            }
-        }
-    }
+    check_finite(gt, dt)?;
     let classes_lc: Vec<String> = classes.iter().map(|c| c.name.to_lowercase()).collect();
     let frames: Vec<PreparedFrame> =
         gt.par_iter().zip(dt.par_iter()).map(|(g, d)| PreparedFrame::new(g, d, &classes_lc)).collect();
@@ -266,6 +249,29 @@ pub fn evaluate_kitti(
         })
         .collect();
     Ok(GroupResult { name: name.to_string(), num_frames: gt.len(), compute_aos, classes: results })
+}
+
+/// Every number of every object must be finite (the passes compare and sort them).
+pub(crate) fn check_finite(gt: &[KittiFrame], dt: &[KittiFrame]) -> Result<(), EvalError> {
+    for (what, frames) in [("ground truth", gt), ("detection", dt)] {
+        for (f, frame) in frames.iter().enumerate() {
+            let bad = frame.objects.iter().find(|o| {
+                ![o.truncated, o.occluded, o.alpha, o.rotation_y, o.score]
+                    .iter()
+                    .chain(&o.bbox)
+                    .chain(&o.dimensions)
+                    .chain(&o.location)
+                    .all(|v| v.is_finite())
+            });
+            if let Some(o) = bad {
+                return Err(EvalError::Input(format!(
+                    "{what} frame {f} ({}): {} has a non-finite value",
+                    frame.id, o.name
+                )));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// OpenPCDet's rule for AOS: the first detection frame with any detection decides, by whether

@@ -39,30 +39,9 @@ pub fn evaluate_dataset(ds: &dyn Dataset, dets: &Detections, opts: &EvalOptions)
 
 /// Evaluates detections against ground-truth frames (matched by frame id).
 pub fn evaluate(gt: &[FrameInfo], dets: &Detections, opts: &EvalOptions) -> Result<EvalReport, EvalError> {
-    opts.validate()?;
+    let unknown = check_inputs(gt, dets, opts)?;
     let names = NameMap::new(&opts.name_map);
-    let mut ids = BTreeSet::new();
-    for f in gt {
-        if !ids.insert(f.id.as_str()) {
-            return Err(EvalError::Input(format!("ground-truth frame id {:?} occurs twice", f.id)));
-        }
-    }
-    let unknown: Vec<&String> = dets.frames.keys().filter(|k| !ids.contains(k.as_str())).collect();
-    if !unknown.is_empty() && !opts.allow_unknown_frames {
-        let few: Vec<&str> = unknown.iter().take(5).map(|s| s.as_str()).collect();
-        return Err(EvalError::Input(format!(
-            "{}: {} detection frame(s) are not in the ground truth (e.g. {:?}); wrong split? (allow_unknown_frames skips them)",
-            dets.source.display(),
-            unknown.len(),
-            few
-        )));
-    }
-    let filter = Filter {
-        names: &names,
-        score_threshold: opts.score_threshold,
-        bev_range: opts.bev_range,
-        image_size: opts.image_size,
-    };
+    let filter = filter(opts, &names);
     let pairs: Vec<(KittiFrame, KittiFrame)> = gt
         .par_iter()
         .map(|info| {
@@ -104,8 +83,36 @@ pub fn evaluate(gt: &[FrameInfo], dets: &Detections, opts: &EvalOptions) -> Resu
         options: opts.clone(),
         kitti_frames: gt.iter().filter(|f| matches!(convert::Camera::of(f), convert::Camera::Kitti(_))).count(),
         frames_without_detections: gt.iter().filter(|f| !dets.frames.contains_key(&f.id)).count(),
-        unknown_detection_frames: unknown.len(),
+        unknown_detection_frames: unknown,
         overall,
         groups,
     })
+}
+
+/// Checks options and frame ids (shared with the error breakdown); returns the number of
+/// detection frames not in the ground truth (an error unless `allow_unknown_frames`).
+pub(crate) fn check_inputs(gt: &[FrameInfo], dets: &Detections, opts: &EvalOptions) -> Result<usize, EvalError> {
+    opts.validate()?;
+    let mut ids = BTreeSet::new();
+    for f in gt {
+        if !ids.insert(f.id.as_str()) {
+            return Err(EvalError::Input(format!("ground-truth frame id {:?} occurs twice", f.id)));
+        }
+    }
+    let unknown: Vec<&String> = dets.frames.keys().filter(|k| !ids.contains(k.as_str())).collect();
+    if !unknown.is_empty() && !opts.allow_unknown_frames {
+        let few: Vec<&str> = unknown.iter().take(5).map(|s| s.as_str()).collect();
+        return Err(EvalError::Input(format!(
+            "{}: {} detection frame(s) are not in the ground truth (e.g. {:?}); wrong split? (allow_unknown_frames skips them)",
+            dets.source.display(),
+            unknown.len(),
+            few
+        )));
+    }
+    Ok(unknown.len())
+}
+
+/// The conversion filter the options ask for.
+pub(crate) fn filter<'a>(opts: &EvalOptions, names: &'a NameMap) -> Filter<'a> {
+    Filter { names, score_threshold: opts.score_threshold, bev_range: opts.bev_range, image_size: opts.image_size }
 }

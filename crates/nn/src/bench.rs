@@ -15,7 +15,9 @@ use tch::Device;
 
 use crate::augment::Sample;
 use crate::config::{DetectorConfig, HeadConfig};
-use crate::detector::{Detector, FrameTargets, Targets};
+use crate::dense_heads::anchor_head::AnchorBatchTargets;
+use crate::dense_heads::FrameTargets;
+use crate::detector::Detector;
 use crate::error::{NnError, Result};
 use crate::optim::Optimizer;
 
@@ -112,8 +114,12 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
     let pillars: Vec<_> = batch.iter().map(|s| pz.run(&s.points, cfg.pillars.max_pillars_train)).collect();
     let targets: Vec<FrameTargets> = batch.iter().map(|s| prep.targets(s)).collect();
     let x = prep.collate_inputs(&pillars.iter().collect::<Vec<_>>());
-    let t = prep.collate_targets(&targets.iter().collect::<Vec<_>>());
+    let t = prep.collate_targets(&targets.iter().collect::<Vec<_>>())?;
     let (xd, td) = (x.to_device(opts.device), t.to_device(opts.device));
+    let gt: Vec<crate::data_loader::FrameGt> = batch
+        .iter()
+        .map(|s| crate::data_loader::FrameGt { boxes: s.boxes.clone(), classes: s.classes.clone() })
+        .collect();
     let mut optim = Optimizer::new(det.named_trainables(), &cfg.train);
     let sync = || {
         if opts.device.is_cuda() {
@@ -124,14 +130,14 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
     let mut parts = [0f64; 4];
     for i in 0..opts.warmup + opts.iters {
         let t0 = Instant::now();
-        let out = det.forward_t(&xd, true);
+        let out = det.forward_train(&xd, &gt, &mut rand::SeedableRng::seed_from_u64(i as u64))?;
         sync();
         let t1 = Instant::now();
-        let l = det.loss(&out, &td);
+        let l = det.loss(&out, &td)?;
         sync();
         let t2 = Instant::now();
         optim.zero_grad();
-        l.total.backward();
+        l.total().backward();
         sync();
         let t3 = Instant::now();
         optim.clip_grad_norm(cfg.train.grad_clip);
@@ -156,10 +162,10 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
             let p = pz.run(points, cfg.pillars.max_pillars_test);
             let xi = prep.collate_inputs(&[&p]).to_device(opts.device);
             let t1 = Instant::now();
-            let out = det.forward_t(&xi, false);
+            let out = det.forward_t(&xi, false)?;
             sync();
             let t2 = Instant::now();
-            let dets = det.post_process(&out, 1);
+            let dets = det.post_process(&out, 1)?;
             let t3 = Instant::now();
             std::hint::black_box(dets);
             infer_pillars = p.len();
@@ -195,7 +201,9 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
     let i64b = |v: i64| v.to_le_bytes().to_vec();
     write_bin(dir, "train_features", &tensor_f32(&x.features)?, f32b)?;
     write_bin(dir, "train_cells", &tensor_i64(&x.cells)?, i64b)?;
-    let Targets::Anchor(at) = &t else { unreachable!("anchor config") };
+    let at = t
+        .downcast_ref::<AnchorBatchTargets>()
+        .ok_or_else(|| NnError::Config("bench nn needs an anchor-head config".into()))?;
     write_bin(dir, "train_labels", &tensor_i64(&at.labels)?, i64b)?;
     write_bin(dir, "train_pos_index", &tensor_i64(&at.pos_index)?, i64b)?;
     write_bin(dir, "train_pos_codes", &tensor_f32(&at.pos_codes)?, f32b)?;
@@ -211,7 +219,7 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
         "backbone": cfg.backbone,
         "anchors_per_location": anchor_cfg.anchors_per_location(),
         "num_classes": cfg.classes.len(),
-        "num_anchors": prep.anchors.as_ref().map_or(0, |a| a.len()),
+        "num_anchors": at.labels.size()[1],
         "nx": prep.grid.nx, "ny": prep.grid.ny,
         "max_points": cfg.pillars.max_points_per_pillar,
         "channels_last": cfg.channels_last && opts.device == Device::Cpu,

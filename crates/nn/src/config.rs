@@ -8,10 +8,15 @@ use serde::{Deserialize, Serialize};
 
 use crate::augment::AugmentConfig;
 use crate::backbone_2d::Backbone2dConfig;
-use crate::dense_heads::{AnchorHeadConfig, CenterHeadConfig};
+use crate::dense_heads::{AnchorHeadConfig, AnyAssigner, AnyDenseHead, CenterHeadConfig};
 use crate::error::{NnError, Result};
+use crate::necks::NeckConfig;
 use crate::pillarize::{Grid, PillarizeConfig};
+use crate::target_assigner::CenterMap;
 use crate::vfe::PillarVfeConfig;
+
+/// Largest BEV map (bytes, one batch) a config may ask for.
+const MAX_BEV_BYTES: f64 = 8.0 * (1u64 << 30) as f64;
 
 /// The dense head.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -24,6 +29,32 @@ pub enum HeadConfig {
 impl Default for HeadConfig {
     fn default() -> Self {
         Self::Anchor(AnchorHeadConfig::default())
+    }
+}
+
+impl HeadConfig {
+    /// The head on `in_channels` BEV channels and a map of geometry `map`.
+    pub fn init(
+        &self,
+        vs: tch::nn::Path,
+        in_channels: i64,
+        num_classes: usize,
+        bn: &crate::BatchNorm,
+        map: &CenterMap,
+    ) -> Box<dyn AnyDenseHead> {
+        let k = num_classes as i64;
+        match self {
+            Self::Anchor(a) => Box::new(a.init(vs, in_channels, k, map)),
+            Self::Center(c) => Box::new(c.init(vs, in_channels, k, bn, map)),
+        }
+    }
+
+    /// The head's target assigner (run on the loader thread).
+    pub fn assigner(&self, map: &CenterMap, num_classes: usize) -> Box<dyn AnyAssigner> {
+        match self {
+            Self::Anchor(a) => Box::new(a.assigner(map)),
+            Self::Center(c) => Box::new(c.assigner(map, num_classes)),
+        }
     }
 }
 
@@ -138,7 +169,13 @@ pub struct DetectorConfig {
     pub batch_norm: crate::BatchNorm,
     pub vfe: PillarVfeConfig,
     pub backbone: Backbone2dConfig,
+    /// Optional BEV-to-BEV module between the backbone and the head.
+    pub neck: Option<NeckConfig>,
     pub head: HeadConfig,
+    /// Optional second stage refining the dense head's boxes from RoI features.
+    pub roi_head: Option<crate::roi_heads::RoiHeadConfig>,
+    /// Scales applied to named loss terms on top of each stage's own weights (e.g. `loc = 1.5`).
+    pub loss_weights: BTreeMap<String, f64>,
     pub post: PostConfig,
     pub train: TrainConfig,
 }
@@ -155,7 +192,10 @@ impl Default for DetectorConfig {
             batch_norm: crate::BatchNorm::default(),
             vfe: PillarVfeConfig::default(),
             backbone: Backbone2dConfig::default(),
+            neck: None,
             head: HeadConfig::default(),
+            roi_head: None,
+            loss_weights: BTreeMap::new(),
             post: PostConfig::default(),
             train: TrainConfig::default(),
         }
@@ -200,6 +240,38 @@ impl DetectorConfig {
         if self.vfe.num_filters.is_empty() || self.vfe.num_filters.iter().any(|&c| c < 2) {
             return Err(NnError::Config("vfe.num_filters must be non-empty, each ≥ 2".into()));
         }
+        // A stacked layer outputs half its width and concatenates the pillar maximum back.
+        let n_vfe = self.vfe.num_filters.len();
+        if let Some(c) = self.vfe.num_filters[..n_vfe - 1].iter().find(|&&c| c % 2 == 1) {
+            return Err(NnError::Config(format!(
+                "vfe.num_filters {:?}: every layer but the last must be even (got {c}): it outputs half and concatenates the pillar maximum",
+                self.vfe.num_filters
+            )));
+        }
+        // The scattered BEV map of one batch must fit in memory.
+        let bev_bytes =
+            (grid.nx * grid.ny) as f64 * self.vfe.out_channels() as f64 * 4.0 * self.train.batch_size as f64;
+        if bev_bytes > MAX_BEV_BYTES {
+            return Err(NnError::Config(format!(
+                "pillar grid {}×{} with {} channels at batch {} needs a {:.1} GiB BEV map (limit {:.0} GiB): use larger pillars or a smaller range",
+                grid.nx,
+                grid.ny,
+                self.vfe.out_channels(),
+                self.train.batch_size,
+                bev_bytes / (1u64 << 30) as f64,
+                MAX_BEV_BYTES / (1u64 << 30) as f64
+            )));
+        }
+        let p = &self.post;
+        if !(0.0..1.0).contains(&p.score_threshold) || !(0.0..=1.0).contains(&p.nms_iou) {
+            return Err(NnError::Config(format!(
+                "post: score_threshold must be in [0, 1) and nms_iou in [0, 1] (got {} and {})",
+                p.score_threshold, p.nms_iou
+            )));
+        }
+        if p.nms_pre_max == 0 || p.nms_post_max == 0 {
+            return Err(NnError::Config("post: nms_pre_max and nms_post_max must be positive".into()));
+        }
         let total_stride: i64 = self.backbone.layer_strides.iter().product();
         if grid.nx as i64 % total_stride != 0 || grid.ny as i64 % total_stride != 0 {
             return Err(NnError::Config(format!(
@@ -229,6 +301,12 @@ impl DetectorConfig {
                 }
             }
         }
+        if let Some(r) = &self.roi_head {
+            r.validate()?;
+        }
+        if let Some((k, w)) = self.loss_weights.iter().find(|(_, w)| !(w.is_finite() && **w >= 0.0)) {
+            return Err(NnError::Config(format!("loss_weights.{k} = {w}: must be finite and ≥ 0")));
+        }
         let t = &self.train;
         if t.batch_size == 0 || t.epochs == 0 {
             return Err(NnError::Config("train.batch_size and train.epochs must be positive".into()));
@@ -241,6 +319,17 @@ impl DetectorConfig {
         }
         for a in &t.augment {
             a.validate()?;
+            if let AugmentConfig::GtSampling(g) = a {
+                let known = |c: &String| self.classes.contains(c);
+                let unknown: Vec<&String> =
+                    g.sample.iter().map(|s| &s.class).chain(g.min_points.keys()).filter(|c| !known(c)).collect();
+                if !unknown.is_empty() {
+                    return Err(NnError::Config(format!(
+                        "gt_sampling names classes {unknown:?} that are not among the detector's classes {:?}",
+                        self.classes
+                    )));
+                }
+            }
         }
         Ok(())
     }
@@ -267,6 +356,21 @@ mod tests {
         assert!(matches!(cfg.head, HeadConfig::Center(ref c) if c.shared_channels == 32));
         assert_eq!(cfg.class_index("Vehicle"), Some(0));
         assert_eq!(cfg.class_index("Cyclist"), None);
+    }
+
+    /// Each bad value is refused with a message naming it, never a panic later.
+    #[test]
+    fn bad_values_name_the_field() {
+        let err = |toml: &str| DetectorConfig::from_toml_str(toml).unwrap_err().to_string();
+        assert!(err("[vfe]\nnum_filters = [33, 64]").contains("even"));
+        assert!(err(
+            "[pillars]\npillar_size = [0.02, 0.02]\npoint_cloud_range = [-80.0, -80.0, -3.0, 80.0, 80.0, 1.0]"
+        )
+        .contains("GiB"));
+        assert!(err("[post]\nscore_threshold = -0.1").contains("score_threshold"));
+        let unknown = "[[train.augment]]\ntype = \"gt_sampling\"\nsample = [{ class = \"Cyclist\", count = 5 }]";
+        assert!(err(unknown).contains("Cyclist"));
+        assert!(err("[head]\ntype = \"anchor\"\nanchors = []").contains("head.anchors"));
     }
 
     #[test]

@@ -16,9 +16,11 @@ use rayon::prelude::*;
 
 use crate::augment::{Augment, Sample};
 use crate::config::DetectorConfig;
-use crate::detector::{FrameTargets, Inputs, Preprocessor, Targets};
+use crate::dense_heads::{BatchTargets, FrameTargets};
 use crate::error::{NnError, Result};
 use crate::pillarize::Pillars;
+use crate::preprocess::{Inputs, Preprocessor};
+use pi3det_geometry::{Box3d, Pose};
 
 /// A dataset restricted to some of its frames.
 #[derive(Clone)]
@@ -79,39 +81,16 @@ pub fn open_split(path: &Path, split: Option<&str>) -> Result<Arc<dyn Dataset>> 
     Ok(Arc::from(pi3det_data::open(path)?))
 }
 
-/// A frame in the detector's frame (z shifted) with its detectable boxes.
+/// A frame in the detector's frame with its detectable boxes, as the config's own transform
+/// (`shift_z`) puts it: see [`Preprocessor::sample`] for a detector with another transform.
 pub fn frame_to_sample(frame: &Frame, cfg: &DetectorConfig, min_points: usize) -> Sample {
-    let dz = cfg.shift_z as f32;
-    let mut points: Vec<[f32; 4]> = Vec::with_capacity(frame.points.len());
-    for p in frame.points.iter() {
-        let q = [p[0], p[1], p[2] + dz, p.get(3).copied().unwrap_or(0.0)];
-        if q.iter().all(|v| v.is_finite()) {
-            points.push(q);
-        }
-    }
-    let mut boxes = Vec::new();
-    let mut classes = Vec::new();
-    for o in &frame.info.objects {
-        let Some(k) = cfg.class_index(&o.name) else { continue };
-        let b = o.box3d;
-        if !b.to_array().iter().all(|v| v.is_finite()) || b.dx <= 0.0 || b.dy <= 0.0 || b.dz <= 0.0 {
-            continue;
-        }
-        if min_points > 0 {
-            let n = match o.num_points {
-                Some(n) => n as usize,
-                None => b.count_points(frame.points.xyz_f64()),
-            };
-            if n < min_points {
-                continue;
-            }
-        }
-        let mut b = b;
-        b.z += cfg.shift_z;
-        boxes.push(b);
-        classes.push(k);
-    }
-    Sample { points, boxes, classes, platform_jitter: None, sensor_z: cfg.shift_z }
+    let t = crate::preprocess::ShiftZ(cfg.shift_z);
+    crate::preprocess::frame_to_sample(
+        frame,
+        cfg,
+        &crate::preprocess::FrameTransform::detector_from_lidar(&t, frame),
+        min_points,
+    )
 }
 
 /// Per-frame RNG seed from the run seed, epoch and frame index (splitmix64).
@@ -126,13 +105,34 @@ pub fn frame_seed(seed: u64, epoch: u64, index: u64) -> u64 {
 pub struct Batch {
     pub inputs: Inputs,
     /// Present when training.
-    pub targets: Option<Targets>,
+    pub targets: Option<BatchTargets>,
+    /// Per frame: the transform into the detector's frame (detections go back through its
+    /// inverse).
+    pub detector_from_lidar: Vec<Pose>,
+    /// Per frame, when training: the (augmented) ground truth in the detector's frame, for
+    /// stages that build targets from the network's own proposals.
+    pub gt: Vec<FrameGt>,
     /// The frames' infos (for writing detections).
     pub infos: Vec<FrameInfo>,
     /// Seconds spent reading and preparing the batch on the loader thread.
     pub prep_seconds: f64,
     pub num_pillars: usize,
     pub dropped_points: usize,
+}
+
+/// Ground-truth boxes of a frame and their class indices.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct FrameGt {
+    pub boxes: Vec<Box3d>,
+    pub classes: Vec<usize>,
+}
+
+/// A frame prepared for the network.
+pub struct PreparedFrame {
+    pub pillars: Pillars,
+    pub targets: Option<FrameTargets>,
+    pub detector_from_lidar: Pose,
+    pub gt: FrameGt,
 }
 
 /// How to load.
@@ -154,9 +154,9 @@ pub fn prepare_frame(
     frame: &Frame,
     train: bool,
     rng_seed: u64,
-) -> Result<(Pillars, Option<FrameTargets>)> {
+) -> Result<PreparedFrame> {
     let cfg = &prep.cfg;
-    let mut s = frame_to_sample(frame, cfg, if train { cfg.train.min_points_in_gt } else { 0 });
+    let mut s = prep.sample(frame, if train { cfg.train.min_points_in_gt } else { 0 });
     let mut pillarizer = prep.pillarizer()?;
     if train {
         let mut rng = ChaCha8Rng::seed_from_u64(rng_seed);
@@ -181,9 +181,15 @@ pub fn prepare_frame(
         }
         s.points.shuffle(&mut rng);
         let pillars = pillarizer.run(&s.points, cfg.pillars.max_pillars_train);
-        Ok((pillars, Some(prep.targets(&s))))
+        if pillars.dropped_points > 0 {
+            tracing::debug!("{}: {} points dropped by the pillar limits", frame.info.id, pillars.dropped_points);
+        }
+        let targets = Some(prep.targets(&s));
+        let gt = FrameGt { boxes: s.boxes, classes: s.classes };
+        Ok(PreparedFrame { pillars, targets, detector_from_lidar: s.detector_from_lidar, gt })
     } else {
-        Ok((pillarizer.run(&s.points, cfg.pillars.max_pillars_test), None))
+        let pillars = pillarizer.run(&s.points, cfg.pillars.max_pillars_test);
+        Ok(PreparedFrame { pillars, targets: None, detector_from_lidar: s.detector_from_lidar, gt: FrameGt::default() })
     }
 }
 
@@ -196,30 +202,34 @@ pub fn prepare_batch(
     opts: &LoaderOptions,
 ) -> Result<Batch> {
     let t = Instant::now();
-    let items: Vec<(FrameInfo, Pillars, Option<FrameTargets>)> = positions
+    let items: Vec<(FrameInfo, PreparedFrame)> = positions
         .par_iter()
         .map(|&pos| {
             let index = subset.indices[pos];
             let frame = subset.dataset.load(index)?;
             let seed = frame_seed(opts.seed, opts.epoch, index as u64);
-            let (p, t) = prepare_frame(prep, augments, &frame, opts.train, seed)?;
-            Ok((frame.info, p, t))
+            let p = prepare_frame(prep, augments, &frame, opts.train, seed)?;
+            Ok((frame.info, p))
         })
         .collect::<Result<_>>()?;
-    let pillars: Vec<&Pillars> = items.iter().map(|x| &x.1).collect();
+    let pillars: Vec<&Pillars> = items.iter().map(|x| &x.1.pillars).collect();
     let inputs = prep.collate_inputs(&pillars);
     let targets = if opts.train {
-        let t: Vec<&FrameTargets> = items.iter().filter_map(|x| x.2.as_ref()).collect();
-        Some(prep.collate_targets(&t))
+        let t: Vec<&FrameTargets> = items.iter().filter_map(|x| x.1.targets.as_ref()).collect();
+        Some(prep.collate_targets(&t)?)
     } else {
         None
     };
     let num_pillars = pillars.iter().map(|p| p.len()).sum();
     let dropped_points = pillars.iter().map(|p| p.dropped_points).sum();
+    let (infos, prepared): (Vec<FrameInfo>, Vec<PreparedFrame>) = items.into_iter().unzip();
+    let (detector_from_lidar, gt) = prepared.into_iter().map(|p| (p.detector_from_lidar, p.gt)).unzip();
     Ok(Batch {
         inputs,
         targets,
-        infos: items.into_iter().map(|x| x.0).collect(),
+        detector_from_lidar,
+        gt,
+        infos,
         prep_seconds: t.elapsed().as_secs_f64(),
         num_pillars,
         dropped_points,

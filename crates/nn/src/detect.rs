@@ -43,13 +43,13 @@ impl Latency {
     }
 }
 
-/// Turns detections into objects named by the config's classes, z shift undone.
-pub fn to_objects(det: &Detector, dets: &[Detection]) -> Vec<Object> {
+/// Turns detections (detector frame) into objects in the LiDAR frame named by the config's
+/// classes.
+pub fn to_objects(det: &Detector, dets: &[Detection], detector_from_lidar: &pi3det_geometry::Pose) -> Vec<Object> {
     let cfg = det.cfg();
     dets.iter()
         .map(|d| {
-            let mut b = d.box3d;
-            b.z -= cfg.shift_z;
+            let b = crate::preprocess::to_lidar(&d.box3d, detector_from_lidar);
             let name = cfg.classes.get(d.class).cloned().unwrap_or_else(|| format!("class{}", d.class));
             Object { score: Some(d.score), ..Object::new(name, b) }
         })
@@ -75,19 +75,19 @@ pub fn detect(
         let n = batch.infos.len();
         let t0 = Instant::now();
         let x = batch.inputs.to_device(det.device());
-        let y = det.forward_t(&x, false);
+        let y = det.forward_t(&x, false)?;
         if det.device().is_cuda() {
             tch::Cuda::synchronize(0);
         }
         let t1 = Instant::now();
-        let dets = det.post_process(&y, x.batch_size);
+        let dets = det.post_process(&y, x.batch_size)?;
         let t2 = Instant::now();
         lat.frames += n;
         lat.prep_ms += batch.prep_seconds * 1e3;
         lat.network_ms += (t1 - t0).as_secs_f64() * 1e3;
         lat.post_ms += (t2 - t1).as_secs_f64() * 1e3;
-        for (info, d) in batch.infos.into_iter().zip(dets) {
-            let objects = to_objects(det, &d);
+        for ((info, d), pose) in batch.infos.into_iter().zip(dets).zip(&batch.detector_from_lidar) {
+            let objects = to_objects(det, &d, pose);
             out.push(FrameDetections { info, objects });
         }
         on_batch(out.len(), total);

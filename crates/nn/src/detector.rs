@@ -1,210 +1,54 @@
-//! PointPillars (Lang et al., "PointPillars: Fast Encoders for Object Detection from Point Clouds",
-//! CVPR 2019) as OpenPCDet builds it: pillar feature net → scatter → BEV backbone → dense head,
-//! with either the SECOND-style anchor head or the CenterPoint center head (Yin et al., CVPR 2021).
+//! The detector as OpenPCDet users know it: a chain of named slots
+//! `vfe → [backbone_3d] → map_to_bev → backbone_2d → [neck] → dense_head → [roi_head]`, each
+//! built from its config. PointPillars (Lang et al., CVPR 2019) fills it with the pillar feature
+//! net, the pillar scatter and the BEV backbone; the dense head is the SECOND-style anchor head
+//! or the CenterPoint center head (Yin et al., CVPR 2021). The `backbone_3d` slot (sparse 3-D
+//! convolution) is where voxel detectors will go; it is empty for pillars.
 //!
 //! Train: `pi3det train --config configs/pointpillars_cpu.toml --data DIR --out runs/pp`;
 //! detect: `pi3det detect --ckpt runs/pp/final.safetensors --data DIR --out det/`.
 //!
 //! The network runs on libtorch (tch); everything around it — pillarization, augmentation, target
-//! assignment (on the loader thread), NMS — is Rust.
+//! assignment (on the loader thread, [`crate::preprocess`]), NMS — is Rust.
 
 use std::sync::Arc;
 
-use pi3det_geometry::{nms, Box3d, NmsConfig};
+use rand_chacha::ChaCha8Rng;
 use tch::nn::VarStore;
-use tch::{Device, Kind, Tensor};
+use tch::{Device, Tensor};
 
-use crate::augment::Sample;
 use crate::backbone_2d::Backbone2d;
-use crate::config::{DetectorConfig, HeadConfig};
-use crate::dense_heads::anchor_head::{make_anchors, AnchorBatchTargets, AnchorHead, AnchorOutput};
-use crate::dense_heads::center_head::{CenterBatchTargets, CenterHead, CenterOutput};
-use crate::error::Result;
-use crate::pillarize::{Grid, Pillarizer, Pillars, POINT_FEATURES};
+use crate::config::DetectorConfig;
+use crate::data_loader::FrameGt;
+use crate::dense_heads::{AnyDenseHead, BatchTargets, DenseOutput};
+use crate::error::{NnError, Result};
+use crate::losses::LossTerms;
+use crate::necks::Neck;
+pub use crate::post_process::Detection;
+use crate::post_process::{nms_detections, to_detections};
+pub use crate::preprocess::{Inputs, Preprocessor};
+use crate::roi_heads::roi_head::refined_frames;
+use crate::roi_heads::{ProposalBatch, Proposals, RoiBatchTargets, RoiOutput, SecondStage};
 use crate::scatter::scatter;
-use crate::target_assigner::center::CenterMap;
-use crate::target_assigner::{axis_aligned, center, AnchorTargets, Anchors, CenterTargets};
 use crate::vfe::PillarVfe;
 
-/// One detection in the detector's (shifted) frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Detection {
-    pub box3d: Box3d,
-    pub score: f64,
-    pub class: usize,
+/// What one forward pass produced: the BEV map the heads saw and their outputs.
+pub struct Forward {
+    /// `[B, C, H, W]` BEV features after the backbone (and neck).
+    pub bev: Tensor,
+    pub dense: DenseOutput,
+    /// The second stage, when the detector has one.
+    pub roi: Option<RoiStage>,
 }
 
-/// Targets of one frame.
-#[derive(Debug, Clone, PartialEq)]
-pub enum FrameTargets {
-    Anchor(AnchorTargets),
-    Center(CenterTargets),
-}
-
-/// Network input of a batch: pillars of all frames.
-pub struct Inputs {
-    /// `[ΣP, M, 10]` decorated points.
-    pub features: Tensor,
-    /// `[ΣP]` flat BEV index `b·ny·nx + cell`.
-    pub cells: Tensor,
-    pub batch_size: i64,
-}
-
-impl Inputs {
-    pub fn to_device(&self, d: Device) -> Self {
-        Self { features: self.features.to_device(d), cells: self.cells.to_device(d), batch_size: self.batch_size }
-    }
-}
-
-pub enum Targets {
-    Anchor(AnchorBatchTargets),
-    Center(CenterBatchTargets),
-}
-
-impl Targets {
-    pub fn to_device(&self, d: Device) -> Self {
-        match self {
-            Self::Anchor(t) => Self::Anchor(t.to_device(d)),
-            Self::Center(t) => Self::Center(t.to_device(d)),
-        }
-    }
-}
-
-pub enum Output {
-    Anchor(AnchorOutput),
-    Center(CenterOutput),
-}
-
-/// Loss total and named, weighted terms.
-pub struct Losses {
-    pub total: Tensor,
-    pub terms: Vec<(&'static str, Tensor)>,
-}
-
-/// Everything needed to turn frames into network inputs and targets, without the network: shared
-/// with the loader thread.
-pub struct Preprocessor {
-    pub cfg: DetectorConfig,
-    pub grid: Grid,
-    pub map: CenterMap,
-    pub anchors: Option<Anchors>,
-}
-
-impl Preprocessor {
-    pub fn new(cfg: &DetectorConfig) -> Result<Self> {
-        cfg.validate()?;
-        let grid = Grid::new(&cfg.pillars)?;
-        let s = cfg.backbone.output_stride() as usize;
-        let map = CenterMap {
-            h: grid.ny / s,
-            w: grid.nx / s,
-            cell: [grid.vx * s as f64, grid.vy * s as f64],
-            origin: [grid.x_min, grid.y_min],
-        };
-        let anchors = match &cfg.head {
-            HeadConfig::Anchor(a) => Some(make_anchors(a, map.h, map.w, map.cell, map.origin)),
-            HeadConfig::Center(_) => None,
-        };
-        Ok(Self { cfg: cfg.clone(), grid, map, anchors })
-    }
-
-    pub fn pillarizer(&self) -> Result<Pillarizer> {
-        Pillarizer::new(&self.cfg.pillars)
-    }
-
-    /// Training targets of a sample (boxes in the detector's frame).
-    pub fn targets(&self, s: &Sample) -> FrameTargets {
-        match (&self.cfg.head, &self.anchors) {
-            (HeadConfig::Anchor(a), Some(anchors)) => {
-                FrameTargets::Anchor(axis_aligned::assign(anchors, &a.anchors, &s.boxes, &s.classes))
-            }
-            (HeadConfig::Center(c), _) => FrameTargets::Center(center::assign(
-                &c.targets,
-                &self.map,
-                self.cfg.classes.len(),
-                &s.boxes,
-                &s.classes,
-            )),
-            (HeadConfig::Anchor(_), None) => unreachable!("anchors are built with an anchor head"),
-        }
-    }
-
-    /// Stacks frames' pillars into network inputs.
-    pub fn collate_inputs(&self, pillars: &[&Pillars]) -> Inputs {
-        let m = self.cfg.pillars.max_points_per_pillar;
-        let total: usize = pillars.iter().map(|p| p.len()).sum();
-        let mut cells = Vec::with_capacity(total);
-        let plane = (self.grid.nx * self.grid.ny) as i64;
-        for (b, p) in pillars.iter().enumerate() {
-            cells.extend(p.cells.iter().map(|&c| c + b as i64 * plane));
-        }
-        // The frames' features go straight into the tensor's memory (one copy).
-        let features =
-            Tensor::empty([total as i64, m as i64, POINT_FEATURES as i64], (tch::Kind::Float, tch::Device::Cpu));
-        let n = total * m * POINT_FEATURES;
-        if n > 0 {
-            // SAFETY: a fresh, contiguous CPU float tensor of exactly `n` elements, not shared.
-            let dst = unsafe { std::slice::from_raw_parts_mut(features.data_ptr() as *mut f32, n) };
-            let mut at = 0;
-            for p in pillars {
-                dst[at..at + p.features.len()].copy_from_slice(&p.features);
-                at += p.features.len();
-            }
-        }
-        Inputs { features, cells: Tensor::from_slice(&cells), batch_size: pillars.len() as i64 }
-    }
-
-    /// Stacks frames' targets (all of the same kind).
-    pub fn collate_targets(&self, targets: &[&FrameTargets]) -> Targets {
-        let b = targets.len() as i64;
-        match (&self.cfg.head, &self.anchors) {
-            (HeadConfig::Anchor(_), Some(anchors)) => {
-                let n = anchors.len() as i64;
-                let mut labels = Vec::with_capacity(targets.len() * anchors.len());
-                let (mut idx, mut codes, mut dir, mut w) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-                for (k, t) in targets.iter().enumerate() {
-                    let FrameTargets::Anchor(t) = t else { continue };
-                    labels.extend_from_slice(&t.labels);
-                    idx.extend(t.pos_index.iter().map(|&i| i + k as i64 * n));
-                    codes.extend_from_slice(&t.pos_codes);
-                    dir.extend_from_slice(&t.pos_dir);
-                    let inv = 1.0 / t.pos_index.len().max(1) as f32;
-                    w.extend(std::iter::repeat_n(inv, t.pos_index.len()));
-                }
-                let p = idx.len() as i64;
-                Targets::Anchor(AnchorBatchTargets {
-                    labels: Tensor::from_slice(&labels).view([b, n]),
-                    pos_index: Tensor::from_slice(&idx),
-                    pos_codes: Tensor::from_slice(&codes).view([p, 7]),
-                    pos_dir: Tensor::from_slice(&dir),
-                    pos_weight: Tensor::from_slice(&w),
-                })
-            }
-            _ => {
-                let (h, w) = (self.map.h as i64, self.map.w as i64);
-                let c = self.cfg.classes.len() as i64;
-                let mut hm = Vec::with_capacity((b * c * h * w) as usize);
-                let (mut idx, mut codes) = (Vec::new(), Vec::new());
-                for (k, t) in targets.iter().enumerate() {
-                    let FrameTargets::Center(t) = t else { continue };
-                    hm.extend_from_slice(&t.heatmap);
-                    idx.extend(t.index.iter().map(|&i| i + k as i64 * h * w));
-                    codes.extend_from_slice(&t.codes);
-                }
-                let kk = idx.len() as i64;
-                Targets::Center(CenterBatchTargets {
-                    heatmap: Tensor::from_slice(&hm).view([b, c, h, w]),
-                    index: Tensor::from_slice(&idx),
-                    codes: Tensor::from_slice(&codes).view([kk, center::CENTER_CODE_SIZE as i64]),
-                })
-            }
-        }
-    }
-}
-
-enum Head {
-    Anchor(Box<AnchorHead>),
-    Center(Box<CenterHead>),
+/// The second stage's part of a forward pass.
+pub struct RoiStage {
+    /// Per-RoI features, score logits and box codes; `out.rois` are the RoIs (detector frame).
+    pub out: RoiOutput,
+    /// Training: the sampled RoIs' targets.
+    pub targets: Option<RoiBatchTargets>,
+    /// Inference: the proposals the RoIs came from (scores, labels, padding mask).
+    pub proposals: Option<ProposalBatch>,
 }
 
 /// The network with its weights.
@@ -212,28 +56,37 @@ pub struct Detector {
     pub vs: VarStore,
     pub prep: Arc<Preprocessor>,
     vfe: PillarVfe,
-    backbone: Backbone2d,
-    head: Head,
-    /// Anchors on the device (anchor head only).
-    anchors: Option<Tensor>,
+    backbone_2d: Backbone2d,
+    neck: Option<Box<dyn Neck>>,
+    dense_head: Box<dyn AnyDenseHead>,
+    roi_head: Option<Box<dyn SecondStage>>,
 }
 
 impl Detector {
     pub fn new(cfg: &DetectorConfig, device: Device) -> Result<Self> {
-        let prep = Arc::new(Preprocessor::new(cfg)?);
+        Self::with_preprocessor(Preprocessor::new(cfg)?, device)
+    }
+
+    /// A detector whose frames go through `prep` (e.g. one with a per-frame transform).
+    pub fn with_preprocessor(prep: Preprocessor, device: Device) -> Result<Self> {
+        let prep = Arc::new(prep);
+        let cfg = &prep.cfg;
         let vs = VarStore::new(device);
         let root = vs.root();
         let bn = &cfg.batch_norm;
         let vfe = cfg.vfe.init(&root / "vfe", bn);
-        let backbone = cfg.backbone.init(&root / "backbone_2d", cfg.vfe.out_channels(), bn);
-        let c = cfg.backbone.out_channels();
-        let k = cfg.classes.len() as i64;
-        let head = match &cfg.head {
-            HeadConfig::Anchor(a) => Head::Anchor(Box::new(a.init(&root / "dense_head", c, k))),
-            HeadConfig::Center(h) => Head::Center(Box::new(h.init(&root / "dense_head", c, k, bn))),
+        let backbone_2d = cfg.backbone.init(&root / "backbone_2d", cfg.vfe.out_channels(), bn);
+        let mut c = cfg.backbone.out_channels();
+        let neck = cfg.neck.as_ref().map(|n| n.init(&root / "neck", c, bn));
+        if let Some(n) = &neck {
+            c = n.out_channels();
+        }
+        let dense_head = cfg.head.init(&root / "dense_head", c, cfg.classes.len(), bn, &prep.map);
+        let roi_head = match &cfg.roi_head {
+            Some(r) => Some(Box::new(r.init(&root / "roi_head", c, bn)?) as Box<dyn SecondStage>),
+            None => None,
         };
-        let anchors = prep.anchors.as_ref().map(|a| a.to_tensor().to_device(device));
-        Ok(Self { vs, prep, vfe, backbone, head, anchors })
+        Ok(Self { vs, prep, vfe, backbone_2d, neck, dense_head, roi_head })
     }
 
     pub fn cfg(&self) -> &DetectorConfig {
@@ -256,102 +109,127 @@ impl Detector {
         self.vs.variables().into_iter().filter(|(_, t)| ptrs.contains(&(t.data_ptr() as usize))).collect()
     }
 
-    /// BEV features `[B, C, H, W]` of a batch.
+    /// `vfe → map_to_bev → backbone_2d → [neck]`: BEV features `[B, C, H, W]` of a batch.
     pub fn bev_features(&self, x: &Inputs, train: bool) -> Tensor {
         let pillar = self.vfe.forward_t(&x.features, train);
-        let channels_last = self.cfg().channels_last && self.device() == tch::Device::Cpu;
+        let channels_last = self.cfg().channels_last && self.device() == Device::Cpu;
         let bev =
             scatter(&pillar, &x.cells, x.batch_size, self.prep.grid.ny as i64, self.prep.grid.nx as i64, channels_last);
-        self.backbone.forward_t(&bev, train)
-    }
-
-    pub fn forward_t(&self, x: &Inputs, train: bool) -> Output {
-        let f = self.bev_features(x, train);
-        match &self.head {
-            Head::Anchor(h) => Output::Anchor(h.forward(&f)),
-            Head::Center(h) => Output::Center(h.forward_t(&f, train)),
+        let bev = self.backbone_2d.forward_t(&bev, train);
+        match &self.neck {
+            Some(n) => n.forward_t(&bev, train),
+            None => bev,
         }
     }
 
-    pub fn loss(&self, out: &Output, t: &Targets) -> Losses {
-        match (&self.head, out, t) {
-            (Head::Anchor(h), Output::Anchor(o), Targets::Anchor(t)) => {
-                let (total, [cls, loc, dir]) = h.loss(o, t);
-                Losses { total, terms: vec![("cls", cls), ("loc", loc), ("dir", dir)] }
-            }
-            (Head::Center(h), Output::Center(o), Targets::Center(t)) => {
-                let (total, [hm, loc]) = h.loss(o, t);
-                Losses { total, terms: vec![("hm", hm), ("loc", loc)] }
-            }
-            _ => unreachable!("outputs and targets come from the same head"),
-        }
+    pub fn has_roi_head(&self) -> bool {
+        self.roi_head.is_some()
     }
 
-    /// Score threshold, candidates, rotated NMS; boxes in the detector's (shifted) frame.
-    pub fn post_process(&self, out: &Output, batch_size: i64) -> Vec<Vec<Detection>> {
-        let post = &self.cfg().post;
-        (0..batch_size)
+    /// The chain on a batch for inference (eval-mode when `train` is false). With a second
+    /// stage, the RoIs are the dense head's proposals (test limits).
+    pub fn forward_t(&self, x: &Inputs, train: bool) -> Result<Forward> {
+        let bev = self.bev_features(x, train);
+        let dense = self.dense_head.forward_t(&bev, train);
+        let roi = match &self.roi_head {
+            Some(stage) => {
+                let props = self.proposals(stage.as_ref(), &dense, x.batch_size, false)?;
+                let batch = ProposalBatch::collate(&props).to_device(self.device());
+                let out = stage.forward_t(&bev, &batch.rois, &self.prep.map, train)?;
+                Some(RoiStage { out, targets: None, proposals: Some(batch) })
+            }
+            None => None,
+        };
+        Ok(Forward { bev, dense, roi })
+    }
+
+    /// The chain on a training batch: with a second stage, RoIs are sampled from the dense head's
+    /// proposals (train limits) against `gt` (one entry per frame, detector frame).
+    pub fn forward_train(&self, x: &Inputs, gt: &[FrameGt], rng: &mut ChaCha8Rng) -> Result<Forward> {
+        let bev = self.bev_features(x, true);
+        let dense = self.dense_head.forward_t(&bev, true);
+        let roi = match &self.roi_head {
+            Some(stage) => {
+                if gt.len() as i64 != x.batch_size {
+                    return Err(NnError::Input(format!(
+                        "second stage: {} ground-truth lists for a batch of {}",
+                        gt.len(),
+                        x.batch_size
+                    )));
+                }
+                let props = self.proposals(stage.as_ref(), &dense, x.batch_size, true)?;
+                let targets = stage.sample(&props, gt, rng)?.to_device(self.device());
+                let out = stage.forward_t(&bev, &targets.rois, &self.prep.map, true)?;
+                Some(RoiStage { out, targets: Some(targets), proposals: None })
+            }
+            None => None,
+        };
+        Ok(Forward { bev, dense, roi })
+    }
+
+    /// Proposals of each frame from the dense head's candidates (gradients do not flow into
+    /// them: the RoIs are inputs of the second stage).
+    fn proposals(&self, stage: &dyn SecondStage, dense: &DenseOutput, b: i64, train: bool) -> Result<Vec<Proposals>> {
+        let cfg = stage.proposal_config();
+        let pre_max = if train { cfg.nms_pre_max_train } else { cfg.nms_pre_max_test } as i64;
+        let _guard = tch::no_grad_guard();
+        (0..b)
             .map(|i| {
-                let (boxes, scores, labels) = match (&self.head, out) {
-                    (Head::Anchor(h), Output::Anchor(o)) => h.candidates(
-                        o,
-                        self.anchors.as_ref().expect("anchor head has anchors"),
-                        i,
-                        post.score_threshold,
-                        post.nms_pre_max as i64,
-                    ),
-                    (Head::Center(h), Output::Center(o)) => h.candidates(o, &self.prep.map, i, post.score_threshold),
-                    _ => unreachable!("outputs come from the head"),
-                };
-                self.nms(&boxes, &scores, &labels)
+                let c = self.dense_head.candidates(dense, i, cfg.score_threshold, pre_max)?;
+                cfg.select_tensors(&c.boxes, &c.scores, &c.labels, train)
             })
             .collect()
     }
 
-    fn nms(&self, boxes: &Tensor, scores: &Tensor, labels: &Tensor) -> Vec<Detection> {
-        let post = &self.cfg().post;
-        let b: Vec<f32> = Vec::try_from(boxes.to_kind(Kind::Float).reshape([-1])).unwrap_or_default();
-        let s: Vec<f32> = Vec::try_from(scores.to_kind(Kind::Float)).unwrap_or_default();
-        let l: Vec<i64> = Vec::try_from(labels.to_kind(Kind::Int64)).unwrap_or_default();
-        let dets: Vec<Detection> = (0..s.len())
-            .filter(|&k| b[k * 7..k * 7 + 7].iter().all(|v| v.is_finite()) && s[k].is_finite())
-            .map(|k| {
-                let a: [f64; 7] = std::array::from_fn(|j| b[k * 7 + j] as f64);
-                Detection {
-                    box3d: Box3d::from_array(a).with_wrapped_heading(),
-                    score: s[k] as f64,
-                    class: l[k] as usize,
-                }
-            })
-            .collect();
-        let cfg = NmsConfig {
-            iou_threshold: post.nms_iou,
-            score_threshold: post.score_threshold,
-            pre_max_size: post.nms_pre_max,
-            post_max_size: post.nms_post_max,
-        };
-        let run = |subset: &[Detection]| -> Vec<Detection> {
-            let boxes: Vec<Box3d> = subset.iter().map(|d| d.box3d).collect();
-            let scores: Vec<f64> = subset.iter().map(|d| d.score).collect();
-            nms(&boxes, &scores, &cfg).into_iter().map(|k| subset[k]).collect()
-        };
-        if post.per_class_nms {
-            let mut out: Vec<Detection> = (0..self.cfg().classes.len())
-                .flat_map(|c| run(&dets.iter().copied().filter(|d| d.class == c).collect::<Vec<_>>()))
-                .collect();
-            out.sort_by(|a, b| b.score.total_cmp(&a.score));
-            out.truncate(post.nms_post_max);
-            out
-        } else {
-            run(&dets)
+    /// The named loss terms of a forward pass against the batch's targets.
+    pub fn loss(&self, out: &Forward, targets: &BatchTargets) -> Result<LossTerms> {
+        let mut losses = LossTerms::new(&self.cfg().loss_weights);
+        self.dense_head.loss(&out.dense, targets, &mut losses)?;
+        if let (Some(stage), Some(roi)) = (&self.roi_head, &out.roi) {
+            let t = roi.targets.as_ref().ok_or_else(|| {
+                NnError::Input("the second stage's loss needs a forward_train pass (sampled RoIs)".into())
+            })?;
+            stage.loss(&roi.out, t, &mut losses)?;
         }
+        Ok(losses)
     }
 
-    /// Inference on prepared inputs (no gradients, eval-mode batch norm).
-    pub fn predict(&self, x: &Inputs) -> Vec<Vec<Detection>> {
+    /// Final detections per frame in the detector's frame: the refined RoIs (second stage) or
+    /// the dense head's candidates, score threshold, rotated NMS.
+    pub fn post_process(&self, out: &Forward, batch_size: i64) -> Result<Vec<Vec<Detection>>> {
+        let post = &self.cfg().post;
+        let k = self.cfg().classes.len();
+        if let (Some(stage), Some(roi)) = (&self.roi_head, &out.roi) {
+            let p = roi.proposals.as_ref().ok_or_else(|| {
+                NnError::Input("post-processing of the second stage needs an inference pass (proposals)".into())
+            })?;
+            let (boxes, scores) = stage.refine(&roi.out, &p.rois, &p.roi_scores);
+            let frames = refined_frames(&boxes, &scores, &p.roi_labels, &p.valid);
+            return Ok(frames
+                .into_iter()
+                .map(|f| {
+                    let dets: Vec<Detection> = f
+                        .into_iter()
+                        .filter(|(_, s, _)| *s >= post.score_threshold)
+                        .map(|(b, score, class)| Detection { box3d: b.with_wrapped_heading(), score, class })
+                        .collect();
+                    nms_detections(&dets, post, k, post.nms_iou, post.nms_post_max)
+                })
+                .collect());
+        }
+        (0..batch_size)
+            .map(|i| {
+                let c = self.dense_head.candidates(&out.dense, i, post.score_threshold, post.nms_pre_max as i64)?;
+                Ok(nms_detections(&to_detections(&c), post, k, post.nms_iou, post.nms_post_max))
+            })
+            .collect()
+    }
+
+    /// Inference on prepared inputs (no gradients, eval-mode batch norm); detector frame.
+    pub fn predict(&self, x: &Inputs) -> Result<Vec<Vec<Detection>>> {
         let _guard = tch::no_grad_guard();
         let x = x.to_device(self.device());
-        let out = self.forward_t(&x, false);
+        let out = self.forward_t(&x, false)?;
         self.post_process(&out, x.batch_size)
     }
 }

@@ -4,7 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use pi3det_eval::{Detections, EvalOptions, EvalReport};
+use pi3det_eval::{Breakdown, Detections, EvalOptions, EvalReport};
 
 use crate::detect::FrameDetections;
 use crate::error::{NnError, Result};
@@ -64,6 +64,15 @@ pub fn evaluate(frames: &[FrameDetections], opts: &EvalOptions) -> Result<(EvalR
     let report = pi3det_eval::evaluate(&gt, &dets, opts).map_err(|e| NnError::Eval(e.to_string()))?;
     let summary = summarize(&report);
     Ok((report, summary))
+}
+
+/// The error breakdown (AP and recall by distance and points per box, found-but-misplaced share,
+/// localisation errors) of detections against their frames' ground truth.
+pub fn breakdown(frames: &[FrameDetections], opts: &EvalOptions) -> Result<Breakdown> {
+    let dets = Detections::from_objects(frames.iter().map(|f| (f.info.id.clone(), f.objects.clone())))
+        .map_err(|e| NnError::Eval(e.to_string()))?;
+    let gt: Vec<pi3det_data::FrameInfo> = frames.iter().map(|f| f.info.clone()).collect();
+    pi3det_eval::breakdown(&gt, &dets, opts).map_err(|e| NnError::Eval(e.to_string()))
 }
 
 pub fn summarize(report: &EvalReport) -> ApSummary {

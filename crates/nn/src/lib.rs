@@ -12,7 +12,10 @@
 //! | [`dense_heads`] | anchor head, center head |
 //! | [`target_assigner`], [`box_coder`], [`losses`] | anchors and IoU assignment, Gaussian heatmaps, encodings, losses |
 //! | [`augment`] | world flip / rotation / scaling, random object rotation, GT sampling, Random Platform Jitter |
-//! | [`detector`] | the assembled network, post-processing (score threshold, rotated NMS) |
+//! | [`detector`] | the model chain `vfe → map_to_bev → backbone_2d → [neck] → dense_head` |
+//! | [`preprocess`], [`post_process`] | per-frame `detector_from_lidar`, pillars and targets; score threshold and rotated NMS |
+//! | [`necks`] | the BEV-to-BEV slot |
+//! | [`roi_heads`] | the second stage: proposals, RoI sampling, BEV RoI pooling, IoU-guided score and box refinement |
 //! | [`data_loader`], [`train`], [`optim`], [`checkpoint`] | batches on a background thread, the training loop, AdamW + one-cycle, safetensors checkpoints |
 //! | [`detect`], [`eval`] | inference over a dataset, JSON lines / `result.pkl`, evaluation with `pi3det-eval` |
 //! | [`bench`](mod@bench) | the side-by-side benchmark against PyTorch (`python/bench_pointpillars.py`) |
@@ -38,8 +41,12 @@ pub mod device;
 pub mod error;
 pub mod eval;
 pub mod losses;
+pub mod necks;
 pub mod optim;
 pub mod pillarize;
+pub mod post_process;
+pub mod preprocess;
+pub mod roi_heads;
 pub mod scatter;
 pub mod target_assigner;
 pub mod train;

@@ -2,10 +2,52 @@
 //! the sin-difference heading trick (SECOND), direction cross-entropy, and CenterNet's focal loss
 //! on Gaussian heatmaps (CornerNet) with its masked L1 regression loss.
 
+use std::collections::BTreeMap;
 use tch::{Kind, Reduction, Tensor};
 
 fn one_minus(t: &Tensor) -> Tensor {
     t.neg() + 1.0
+}
+
+/// The training loss as a named sum. Every stage (dense head, RoI head, later alignment losses)
+/// adds its terms, already weighted by its own config; `loss_weights` in the detector config
+/// scales any term by name on top, so a new term needs no change to the training loop.
+pub struct LossTerms {
+    terms: Vec<(&'static str, Tensor)>,
+    scale: BTreeMap<String, f64>,
+}
+
+impl LossTerms {
+    pub fn new(scale: &BTreeMap<String, f64>) -> Self {
+        Self { terms: Vec::new(), scale: scale.clone() }
+    }
+
+    /// Adds `value` (a scalar tensor) under `name`, times the configured scale of that name.
+    pub fn add(&mut self, name: &'static str, value: Tensor) {
+        let value = match self.scale.get(name) {
+            Some(&w) => value * w,
+            None => value,
+        };
+        self.terms.push((name, value));
+    }
+
+    pub fn terms(&self) -> &[(&'static str, Tensor)] {
+        &self.terms
+    }
+
+    /// The sum of the terms (a zero scalar when there are none).
+    pub fn total(&self) -> Tensor {
+        let mut it = self.terms.iter().map(|(_, t)| t);
+        match it.next() {
+            Some(first) => it.fold(first.shallow_clone(), |acc, t| acc + t),
+            None => Tensor::zeros([], (tch::Kind::Float, tch::Device::Cpu)),
+        }
+    }
+
+    /// Configured scales whose name no stage used (a typo would otherwise be silently ignored).
+    pub fn unused_scales(&self) -> Vec<String> {
+        self.scale.keys().filter(|k| !self.terms.iter().any(|(n, _)| n == k)).cloned().collect()
+    }
 }
 
 /// Sigmoid focal loss, summed: `logits` `[..., C]`, one-hot `targets` `[..., C]`, `weights`

@@ -12,6 +12,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use tch::Device;
@@ -19,12 +21,13 @@ use tch::Device;
 use crate::augment::{Augment, AugmentConfig, GtDatabase, GtSamplingConfig};
 use crate::checkpoint::{self, TrainState};
 use crate::config::DetectorConfig;
-use crate::data_loader::{frame_to_sample, Loader, LoaderOptions, Subset};
+use crate::data_loader::{Loader, LoaderOptions, Subset};
 use crate::detect;
 use crate::detector::Detector;
 use crate::error::{NnError, Result};
 use crate::eval::{self, ApSummary};
 use crate::optim::{OneCycle, Optimizer};
+use crate::preprocess::Preprocessor;
 
 /// What to train on and where to write.
 pub struct TrainOptions {
@@ -113,12 +116,13 @@ pub fn build_augments(cfg: &DetectorConfig, train: &Subset) -> Result<(Vec<Box<d
 
 /// The ground-truth database of a training subset (frames read in parallel).
 pub fn build_database(cfg: &DetectorConfig, train: &Subset, gs: &GtSamplingConfig) -> Result<GtDatabase> {
+    let prep = Preprocessor::new(cfg)?;
     let parts: Vec<GtDatabase> = train
         .indices
         .par_iter()
         .map(|&i| {
             let frame = train.dataset.load(i)?;
-            let s = frame_to_sample(&frame, cfg, cfg.train.min_points_in_gt);
+            let s = prep.sample(&frame, cfg.train.min_points_in_gt);
             Ok(GtDatabase::build([&s], &cfg.classes, gs))
         })
         .collect::<Result<_>>()?;
@@ -223,12 +227,27 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
             let x = batch.inputs.to_device(opts.device);
             let targets = batch.targets.as_ref().ok_or_else(|| NnError::Loader("batch without targets".into()))?;
             let t = targets.to_device(opts.device);
-            let out = det.forward_t(&x, true);
-            let losses = det.loss(&out, &t);
+            let mut rng = ChaCha8Rng::seed_from_u64(crate::data_loader::frame_seed(
+                cfg.train.seed,
+                epoch as u64,
+                optim.step as u64 ^ 0x5eed,
+            ));
+            let out = det.forward_train(&x, &batch.gt, &mut rng)?;
+            let losses = det.loss(&out, &t)?;
+            if optim.step == 0 {
+                let unused = losses.unused_scales();
+                if !unused.is_empty() {
+                    let names: Vec<&str> = losses.terms().iter().map(|(n, _)| *n).collect();
+                    return Err(NnError::Config(format!(
+                        "loss_weights names {unused:?}, which no stage of this detector computes (terms: {names:?})"
+                    )));
+                }
+            }
+            let total = losses.total();
             optim.zero_grad();
-            losses.total.backward();
+            total.backward();
             let grad_norm = optim.clip_grad_norm(cfg.train.grad_clip);
-            let loss = losses.total.double_value(&[]);
+            let loss = total.double_value(&[]);
             if !loss.is_finite() || !grad_norm.is_finite() {
                 return Err(NnError::Diverged(format!(
                     "loss {loss}, gradient norm {grad_norm} at epoch {epoch}, batch {bi}"
@@ -245,7 +264,7 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
                 step: optim.step,
                 lr,
                 loss,
-                terms: losses.terms.iter().map(|(k, v)| (*k, v.double_value(&[]))).collect(),
+                terms: losses.terms().iter().map(|(k, v)| (*k, v.double_value(&[]))).collect(),
                 grad_norm,
                 step_seconds: t_step.elapsed().as_secs_f64(),
                 wait_seconds: wait,

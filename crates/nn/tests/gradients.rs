@@ -66,7 +66,8 @@ fn anchor_loss_gradients_follow_the_assignment() {
     let n = anchors.len() as i64;
     let cfg = AnchorHeadConfig::default();
     let vs = nn::VarStore::new(Device::Cpu);
-    let head = cfg.init(vs.root(), 8, 2);
+    let map = pi3det_nn::target_assigner::CenterMap { h: 16, w: 16, cell: [0.8, 0.8], origin: [-6.4, -6.4] };
+    let head = cfg.init(vs.root(), 8, 2, &map);
     // Random outputs we differentiate with respect to.
     tch::manual_seed(3);
     let cls = (Tensor::randn([1, n, 2], (Kind::Float, Device::Cpu)) * 0.5).set_requires_grad(true);
@@ -130,7 +131,7 @@ fn center_loss_gradients_follow_the_heatmap() {
     let gt = vec![Box3d::new(0.5, -1.3, 0.8, 4.3, 1.9, 1.6, 0.7)];
     let t = center::assign(&CenterTargetConfig::default(), &map, 2, &gt, &[0]);
     let vs = nn::VarStore::new(Device::Cpu);
-    let head = CenterHeadConfig::default().init(vs.root(), 8, 2, &pi3det_nn::BatchNorm::default());
+    let head = CenterHeadConfig::default().init(vs.root(), 8, 2, &pi3det_nn::BatchNorm::default(), &map);
     let hm = Tensor::full([1, 2, 12, 12], -2.0, (Kind::Float, Device::Cpu)).set_requires_grad(true);
     let codes = Tensor::zeros([1, 8, 12, 12], (Kind::Float, Device::Cpu)).set_requires_grad(true);
     let targets = CenterBatchTargets {

@@ -1,20 +1,28 @@
 //! End-to-end sanity: a small detector overfits one simulated frame (pillarize → network → loss →
 //! AdamW) and then finds each of its boxes — BEV IoU > 0.7 for cars, > 0.5 for pedestrians — with
 //! no false positive above the score threshold. Once with the anchor head, once with the center
-//! head. Kept small enough for CI on two cores.
+//! head, and once through the second stage in a rotated detector frame. Kept small enough for CI
+//! on two cores.
 
 use pi3det_data::{Frame, Platform};
-use pi3det_geometry::bev_iou;
+use std::sync::Arc;
+
+use pi3det_geometry::{bev_iou, Pose};
 use pi3det_nn::augment::Sample;
 use pi3det_nn::backbone_2d::Backbone2dConfig;
 use pi3det_nn::config::{HeadConfig, PostConfig, TrainConfig};
-use pi3det_nn::data_loader::frame_to_sample;
+use pi3det_nn::data_loader::FrameGt;
 use pi3det_nn::dense_heads::{AnchorHeadConfig, CenterHeadConfig};
+use pi3det_nn::detect::to_objects;
 use pi3det_nn::optim::{OneCycle, Optimizer};
 use pi3det_nn::pillarize::PillarizeConfig;
+use pi3det_nn::preprocess::{FrameTransform, Preprocessor};
+use pi3det_nn::roi_heads::RoiHeadConfig;
 use pi3det_nn::vfe::PillarVfeConfig;
 use pi3det_nn::{Detector, DetectorConfig};
 use pi3det_sim::{SequenceSpec, SimConfig};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 use tch::Device;
 
 const HALF: f64 = 19.2;
@@ -76,51 +84,94 @@ fn config(head: HeadConfig) -> DetectorConfig {
     }
 }
 
-fn overfit(head: HeadConfig, steps: usize) {
+/// A fixed `detector_from_lidar` for every frame.
+struct Fixed(Pose);
+
+impl FrameTransform for Fixed {
+    fn detector_from_lidar(&self, _frame: &Frame) -> Pose {
+        self.0
+    }
+}
+
+/// Trains on one frame (in the detector's frame given by `transform`, else the config's shift)
+/// and checks the detections, mapped back to the LiDAR frame, against the frame's own labels.
+fn overfit_with(head: HeadConfig, roi: Option<RoiHeadConfig>, transform: Option<Pose>, steps: usize) {
     tch::manual_seed(0);
     tch::set_num_threads(1);
     let frame = sim_frame();
-    let cfg = config(head);
-    let det = Detector::new(&cfg, Device::Cpu).unwrap();
-    let sample: Sample = frame_to_sample(&frame, &cfg, 1);
+    let mut cfg = config(head);
+    cfg.roi_head = roi;
+    let mut prep = Preprocessor::new(&cfg).unwrap();
+    if let Some(t) = transform {
+        prep = prep.with_frame_transform(Arc::new(Fixed(t)));
+    }
+    let det = Detector::with_preprocessor(prep, Device::Cpu).unwrap();
+    let sample: Sample = det.prep.sample(&frame, 1);
     assert!(!sample.boxes.is_empty());
     let prep = det.prep.clone();
     let pillars = prep.pillarizer().unwrap().run(&sample.points, cfg.pillars.max_pillars_train);
     let inputs = prep.collate_inputs(&[&pillars]);
-    let targets = prep.collate_targets(&[&prep.targets(&sample)]);
+    let targets = prep.collate_targets(&[&prep.targets(&sample)]).unwrap();
+    let gt = [FrameGt { boxes: sample.boxes.clone(), classes: sample.classes.clone() }];
     let mut opt = Optimizer::new(det.named_trainables(), &cfg.train);
     let schedule = OneCycle::new(&cfg.train, steps);
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
     let mut first = None;
     let mut last = 0.0;
     for step in 0..steps {
         let (lr, beta1) = schedule.at(step);
-        let out = det.forward_t(&inputs, true);
-        let loss = det.loss(&out, &targets);
+        let out = det.forward_train(&inputs, &gt, &mut rng).unwrap();
+        let losses = det.loss(&out, &targets).unwrap();
+        if cfg.roi_head.is_some() {
+            assert!(losses.terms().iter().any(|(n, _)| *n == "rcnn_corner"), "the second stage adds its terms");
+        }
+        let total = losses.total();
         opt.zero_grad();
-        loss.total.backward();
+        total.backward();
         opt.clip_grad_norm(10.0);
         opt.update(lr, beta1);
-        last = loss.total.double_value(&[]);
+        last = total.double_value(&[]);
         first.get_or_insert(last);
     }
     let first = first.unwrap();
     assert!(last < first * 0.2, "loss went from {first} to {last}");
-    let dets = det.predict(&inputs).remove(0);
-    let mut used = vec![false; dets.len()];
-    for (b, &c) in sample.boxes.iter().zip(&sample.classes) {
+    let dets = det.predict(&inputs).unwrap().remove(0);
+    // Back to the LiDAR frame, as `pi3det detect` writes them.
+    let objects = to_objects(&det, &dets, &sample.detector_from_lidar);
+    let labels: Vec<_> = frame
+        .info
+        .objects
+        .iter()
+        .filter(|o| cfg.class_index(&o.name).is_some() && o.num_points.unwrap_or(1) >= 1)
+        .collect();
+    assert_eq!(labels.len(), sample.boxes.len());
+    let mut used = vec![false; objects.len()];
+    for o in &labels {
+        let c = cfg.class_index(&o.name).unwrap();
         let need = if c == 0 { 0.7 } else { 0.5 };
-        let best = dets
+        let best = objects
             .iter()
             .enumerate()
-            .filter(|(_, d)| d.class == c)
-            .map(|(k, d)| (k, bev_iou(b, &d.box3d)))
+            .filter(|(_, d)| d.name == cfg.classes[c])
+            .map(|(k, d)| (k, bev_iou(&o.box3d, &d.box3d)))
             .max_by(|a, b| a.1.total_cmp(&b.1));
-        let (k, iou) = best.unwrap_or_else(|| panic!("no detection of class {c} for {b:?}; detections {dets:?}"));
-        assert!(iou > need, "class {c} box {b:?}: best BEV IoU {iou:.3} ≤ {need} ({:?})", dets[k]);
+        let (k, iou) =
+            best.unwrap_or_else(|| panic!("no detection of class {c} for {:?}; detections {objects:?}", o.box3d));
+        assert!(iou > need, "class {c} box {:?}: best BEV IoU {iou:.3} ≤ {need} ({:?})", o.box3d, objects[k]);
+        assert!(
+            (objects[k].box3d.z - o.box3d.z).abs() < 0.5,
+            "z back in the LiDAR frame: {:?} vs {:?}",
+            objects[k].box3d,
+            o.box3d
+        );
         used[k] = true;
     }
-    let fps: Vec<_> = dets.iter().zip(&used).filter(|(_, u)| !**u).map(|(d, _)| d).collect();
+    let fps: Vec<_> = objects.iter().zip(&used).filter(|(_, u)| !**u).map(|(d, _)| d).collect();
     assert!(fps.is_empty(), "false positives above the score threshold: {fps:?}");
+}
+
+fn overfit(head: HeadConfig, steps: usize) {
+    overfit_with(head, None, None, steps)
 }
 
 #[test]
@@ -132,4 +183,24 @@ fn anchor_head_overfits_one_frame() {
 fn center_head_overfits_one_frame() {
     let head = CenterHeadConfig { shared_channels: 32, num_head_convs: 1, ..CenterHeadConfig::default() };
     overfit(HeadConfig::Center(head), 250);
+}
+
+/// The second stage trains with the first (its loss terms in the sum) and its refined boxes are
+/// the detections; the frame goes through a non-trivial `detector_from_lidar` (a yaw, a planar
+/// offset and the height shift), and detections come back in the LiDAR frame.
+#[test]
+fn two_stage_overfits_one_frame_in_a_rotated_detector_frame() {
+    let t = Pose::from_parts(
+        nalgebra::Translation3::new(1.5, -2.0, 1.9),
+        nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, 0.35),
+    );
+    let roi = RoiHeadConfig {
+        shared_fc: vec![64],
+        cls_fc: vec![64],
+        reg_fc: vec![64],
+        point_channels: 16,
+        dropout: 0.0,
+        ..Default::default()
+    };
+    overfit_with(HeadConfig::Anchor(AnchorHeadConfig::default()), Some(roi), Some(t), 300);
 }

@@ -4,6 +4,7 @@
 use std::path::Path;
 
 use pi3det_nn::augment::Sample;
+use pi3det_nn::config::HeadConfig;
 use pi3det_nn::{Detector, DetectorConfig};
 use tch::Device;
 
@@ -30,7 +31,8 @@ fn frame() -> Sample {
 fn presets_build_and_run() {
     tch::set_num_threads(1);
     let paper = Detector::new(&preset("pointpillars_paper.toml"), Device::Cpu).unwrap();
-    let anchors = paper.prep.anchors.as_ref().unwrap();
+    let HeadConfig::Anchor(head) = &paper.cfg().head else { panic!("the paper preset has an anchor head") };
+    let anchors = head.assigner(&paper.prep.map).anchors;
     assert_eq!((anchors.h, anchors.w, anchors.per_location), (472, 472, 4));
     assert!(paper.num_parameters() > 4_000_000, "OpenPCDet's PointPillars has 4.8 M parameters");
     for name in ["pointpillars_cpu.toml", "centerpoint_cpu.toml"] {
@@ -39,14 +41,14 @@ fn presets_build_and_run() {
         let s = frame();
         let p = det.prep.pillarizer().unwrap().run(&s.points, cfg.pillars.max_pillars_test);
         assert!(p.len() > 100);
-        let dets = det.predict(&det.prep.collate_inputs(&[&p]));
+        let dets = det.predict(&det.prep.collate_inputs(&[&p])).unwrap();
         assert_eq!(dets.len(), 1);
         assert!(dets[0].len() <= cfg.post.nms_post_max, "{name}");
         assert!(dets[0].iter().all(|d| d.score >= cfg.post.score_threshold && d.box3d.dx > 0.0), "{name}");
         // A frame without a single point in range is not an error.
         let empty = det.prep.pillarizer().unwrap().run(&[[500.0, 0.0, 0.0, 0.0]], cfg.pillars.max_pillars_test);
         assert!(empty.is_empty());
-        let dets = det.predict(&det.prep.collate_inputs(&[&empty, &p]));
+        let dets = det.predict(&det.prep.collate_inputs(&[&empty, &p])).unwrap();
         assert_eq!(dets.len(), 2);
     }
 }

@@ -2,6 +2,10 @@
 //! every training object's box and points; each frame gets up to `count` objects of a class (minus
 //! those it already has) pasted in at their recorded place when their box does not overlap
 //! (BEV IoU > 0) any box already there; the frame's own points inside a pasted box are removed.
+//! With `ground_align` (OpenPCDet's KITTI `USE_ROAD_PLANE`, here without a plane file) a pasted
+//! object is set down on the ground of the frame it goes into: its recorded z belongs to another
+//! frame, whose ground under that place can lie a metre higher or lower (terrain, platform tilt),
+//! and a floating car teaches the network that z cannot be read off the ground.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -28,6 +32,14 @@ pub struct GtSamplingConfig {
     pub sample: Vec<SampleGroup>,
     /// Database objects need at least this many points (per class; others: 5).
     pub min_points: BTreeMap<String, usize>,
+    /// Put pasted objects on the local ground of the receiving frame (see the module docs).
+    pub ground_align: bool,
+    /// The local ground is the `ground_quantile` of the z of the frame's points within
+    /// `ground_margin_m` of the box footprint (outside it); with fewer than `min_ground_points`
+    /// there the margin is doubled once, then the recorded z is kept.
+    pub ground_margin_m: f64,
+    pub ground_quantile: f64,
+    pub min_ground_points: usize,
 }
 
 impl Default for GtSamplingConfig {
@@ -39,6 +51,10 @@ impl Default for GtSamplingConfig {
                 SampleGroup { class: "Pedestrian".into(), count: 10 },
             ],
             min_points: [("Car".to_string(), 5), ("Pedestrian".to_string(), 5)].into_iter().collect(),
+            ground_align: true,
+            ground_margin_m: 2.0,
+            ground_quantile: 0.1,
+            min_ground_points: 8,
         }
     }
 }
@@ -165,10 +181,19 @@ impl Augment for GtSampling {
         if pasted.is_empty() {
             return;
         }
+        // Set each object down on this frame's ground (before the frame's points change).
+        let placed: Vec<(Box3d, f32)> = pasted
+            .iter()
+            .map(|o| {
+                let ground = if self.cfg.ground_align { local_ground_z(&s.points, &o.box3d, &self.cfg) } else { None };
+                let dz = ground.map_or(0.0, |g| g - o.box3d.bottom());
+                (Box3d { z: o.box3d.z + dz, ..o.box3d }, dz as f32)
+            })
+            .collect();
         // Remove the frame's points inside the pasted boxes, then add the objects' points.
         let mut remove = vec![false; s.points.len()];
-        for o in &pasted {
-            for i in points_in_box(&s.points, &o.box3d) {
+        for (b, _) in &placed {
+            for i in points_in_box(&s.points, b) {
                 remove[i] = true;
             }
         }
@@ -177,12 +202,37 @@ impl Augment for GtSampling {
             k += 1;
             !remove[k - 1]
         });
-        for o in pasted {
-            s.points.extend_from_slice(&o.points);
-            s.boxes.push(o.box3d);
+        for (o, (b, dz)) in pasted.into_iter().zip(placed) {
+            s.points.extend(o.points.iter().map(|p| [p[0], p[1], p[2] + dz, p[3]]));
+            s.boxes.push(b);
             s.classes.push(o.class);
         }
     }
+}
+
+/// The ground height under `b` in a frame: a low quantile of the z of the points around the
+/// box's footprint (not inside it: those belong to whatever stands there). `None` when too few
+/// points are near (far away, or nothing but sky).
+pub fn local_ground_z(points: &[[f32; 4]], b: &Box3d, cfg: &GtSamplingConfig) -> Option<f64> {
+    let r = b.bev_radius();
+    let footprint = Box3d { z: 0.0, dz: f64::MAX, ..*b };
+    for margin in [cfg.ground_margin_m, 2.0 * cfg.ground_margin_m] {
+        let reach = r + margin;
+        let mut zs: Vec<f32> = points
+            .iter()
+            .filter(|p| {
+                let (ex, ey) = (p[0] as f64 - b.x, p[1] as f64 - b.y);
+                ex * ex + ey * ey <= reach * reach && !footprint.contains([p[0] as f64, p[1] as f64, 0.0])
+            })
+            .map(|p| p[2])
+            .collect();
+        if zs.len() >= cfg.min_ground_points.max(1) {
+            let k = ((zs.len() - 1) as f64 * cfg.ground_quantile.clamp(0.0, 1.0)).round() as usize;
+            let (_, z, _) = zs.select_nth_unstable_by(k, f32::total_cmp);
+            return Some(*z as f64);
+        }
+    }
+    None
 }
 
 #[cfg(test)]
@@ -210,7 +260,7 @@ mod tests {
         for p in &mut clash.points {
             p[0] += 1.0;
         }
-        let cfg = GtSamplingConfig::default();
+        let cfg = GtSamplingConfig { ground_align: false, ..Default::default() };
         let db = Arc::new(GtDatabase::build([&other, &clash], &names, &cfg));
         assert_eq!(db.by_class[0].len(), 2);
         assert_eq!(db.by_class[1].len(), 1);
@@ -224,5 +274,48 @@ mod tests {
             assert_eq!(points_in_box(&s.points, b).len(), 50);
         }
         assert_eq!(s.points.len(), s0.points.len() + 100);
+    }
+
+    /// A frame whose ground lies 0.8 m higher than the database object's: the pasted car and its
+    /// points are lifted onto it; without ground alignment it would sink into the ground.
+    #[test]
+    fn ground_alignment_sets_objects_on_the_local_ground() {
+        let names = vec!["Car".to_string(), "Pedestrian".to_string()];
+        let car = Box3d::new(20.0, 0.0, -1.1, 4.0, 2.0, 1.6, 0.2); // bottom at −1.9
+        let mut src = Sample { boxes: vec![car], classes: vec![0], ..Default::default() };
+        for k in 0..40 {
+            src.points.push([
+                20.0 + (k % 8) as f32 * 0.4 - 1.6,
+                (k / 8) as f32 * 0.3 - 0.6,
+                -1.8 + (k % 5) as f32 * 0.3,
+                0.5,
+            ]);
+        }
+        let cfg = GtSamplingConfig::default();
+        let db = Arc::new(GtDatabase::build([&src], &names, &cfg));
+        assert_eq!(db.by_class[0].len(), 1);
+        // The receiving frame: flat ground at z = −1.1 around x = 20 m, plus a lamp post.
+        let mut dst = Sample::default();
+        for i in 0..60 {
+            for j in 0..30 {
+                dst.points.push([12.0 + i as f32 * 0.25, -4.0 + j as f32 * 0.25, -1.1, 0.1]);
+            }
+        }
+        for k in 0..20 {
+            dst.points.push([24.5, 2.0, -1.1 + k as f32 * 0.2, 0.3]);
+        }
+        let mut s = dst.clone();
+        GtSampling::new(cfg.clone(), db.clone()).with_classes(&names).apply(&mut s, &mut rng(0));
+        assert_eq!(s.boxes.len(), 1);
+        assert!((s.boxes[0].bottom() - -1.1).abs() < 1e-6, "{:?}", s.boxes[0]);
+        assert_eq!(points_in_box(&s.points, &s.boxes[0]).len(), 40, "the object's points moved with it");
+        assert!((local_ground_z(&dst.points, &car, &cfg).unwrap() - -1.1).abs() < 1e-6);
+        // Off: the recorded z is kept.
+        let mut s = dst.clone();
+        let off = GtSamplingConfig { ground_align: false, ..cfg.clone() };
+        GtSampling::new(off, db).with_classes(&names).apply(&mut s, &mut rng(0));
+        assert_eq!(s.boxes[0].z, car.z);
+        // No points around: no estimate.
+        assert_eq!(local_ground_z(&[], &car, &cfg), None);
     }
 }

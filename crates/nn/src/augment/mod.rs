@@ -12,7 +12,7 @@ pub mod world_scaling;
 
 use std::sync::Arc;
 
-use pi3det_geometry::Box3d;
+use pi3det_geometry::{Box3d, Pose};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
@@ -36,6 +36,11 @@ pub struct Sample {
     /// Height of the LiDAR origin in this sample's frame (the config's `shift_z`): the platform
     /// rotates about its sensor, not about the shifted origin.
     pub sensor_z: f64,
+    /// The transform the loader applied to the frame (before any augmentation): detections made
+    /// in this frame go back to the LiDAR frame through its inverse.
+    pub detector_from_lidar: Pose,
+    /// The frame's pose, when the data has one.
+    pub world_from_lidar: Option<Pose>,
 }
 
 /// One augmentation.
@@ -71,7 +76,12 @@ impl AugmentConfig {
     pub fn validate(&self) -> Result<()> {
         let range_ok = |r: &[f64; 2]| r[0].is_finite() && r[1].is_finite() && r[0] <= r[1];
         let ok = match self {
-            Self::GtSampling(c) => c.sample.iter().all(|s| s.count <= 1000),
+            Self::GtSampling(c) => {
+                c.sample.iter().all(|s| s.count <= 1000)
+                    && c.ground_margin_m.is_finite()
+                    && c.ground_margin_m > 0.0
+                    && (0.0..=1.0).contains(&c.ground_quantile)
+            }
             Self::RandomObjectRotation(c) => range_ok(&c.range_rad),
             Self::WorldFlip(c) => (0.0..=1.0).contains(&c.probability),
             Self::WorldRotation(c) => range_ok(&c.range_rad),
@@ -167,7 +177,7 @@ pub(crate) mod test_util {
         for i in 0..100 {
             points.push([i as f32 * 0.3 - 15.0, (i % 7) as f32 - 3.0, -1.9, 0.1]);
         }
-        Sample { points, boxes, classes: vec![0, 1], platform_jitter: None, sensor_z: 0.0 }
+        Sample { points, boxes, classes: vec![0, 1], ..Default::default() }
     }
 
     pub fn rng(seed: u64) -> ChaCha8Rng {

@@ -9,10 +9,13 @@ use serde::{Deserialize, Serialize};
 use tch::nn::{self, Module};
 use tch::{Device, Kind, Tensor};
 
+use pi3det_geometry::Box3d;
+
+use super::{Candidates, DenseHead, TargetAssigner, ToDevice};
 use crate::box_coder::{limit_period_tensor, ResidualCoder};
-use crate::losses;
-use crate::target_assigner::axis_aligned::{DIR_OFFSET, NUM_DIR_BINS};
-use crate::target_assigner::{AnchorClassConfig, Anchors};
+use crate::losses::{self, LossTerms};
+use crate::target_assigner::axis_aligned::{self, AnchorTargets, DIR_OFFSET, NUM_DIR_BINS};
+use crate::target_assigner::{AnchorClassConfig, Anchors, CenterMap};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -35,7 +38,7 @@ impl Default for AnchorHeadConfig {
             anchors: vec![
                 AnchorClassConfig {
                     class: "Car".into(),
-                    size: [4.2, 2.0, 1.6],
+                    size: [4.2, 2.0, 1.6].into(),
                     bottom_z: 0.0,
                     rotations: vec![0.0, std::f64::consts::FRAC_PI_2],
                     matched_threshold: 0.6,
@@ -43,7 +46,7 @@ impl Default for AnchorHeadConfig {
                 },
                 AnchorClassConfig {
                     class: "Pedestrian".into(),
-                    size: [0.8, 0.6, 1.73],
+                    size: [0.8, 0.6, 1.73].into(),
                     bottom_z: 0.0,
                     rotations: vec![0.0, std::f64::consts::FRAC_PI_2],
                     matched_threshold: 0.5,
@@ -63,10 +66,11 @@ impl Default for AnchorHeadConfig {
 
 impl AnchorHeadConfig {
     pub fn anchors_per_location(&self) -> i64 {
-        self.anchors.iter().map(|a| a.rotations.len() as i64).sum()
+        self.anchors.iter().map(|a| (a.rotations.len() * a.size.as_slice().len()) as i64).sum()
     }
 
-    pub fn init(&self, vs: nn::Path, in_channels: i64, num_classes: i64) -> AnchorHead {
+    /// The head on a map of geometry `map` (its anchors live on the head's device).
+    pub fn init(&self, vs: nn::Path, in_channels: i64, num_classes: i64, map: &CenterMap) -> AnchorHead {
         let a = self.anchors_per_location();
         let pi = 0.01f64;
         let conv = |name: &str, out: i64, bias: f64, std: f64| {
@@ -90,6 +94,15 @@ impl AnchorHeadConfig {
             conv_box: conv("conv_box", a * 7, 0.0, 0.001),
             conv_dir: conv("conv_dir_cls", a * NUM_DIR_BINS as i64, 0.0, 0.01),
             code_weights: Tensor::from_slice(&self.code_weights.map(|v| v as f32)).to_device(vs.device()),
+            anchors: make_anchors(self, map.h, map.w, map.cell, map.origin).to_tensor().to_device(vs.device()),
+        }
+    }
+
+    /// The IoU-based assigner of this head's anchors on a map of geometry `map`.
+    pub fn assigner(&self, map: &CenterMap) -> AnchorAssigner {
+        AnchorAssigner {
+            anchors: make_anchors(self, map.h, map.w, map.cell, map.origin),
+            classes: self.anchors.clone(),
         }
     }
 }
@@ -116,8 +129,8 @@ pub struct AnchorBatchTargets {
     pub pos_weight: Tensor,
 }
 
-impl AnchorBatchTargets {
-    pub fn to_device(&self, d: Device) -> Self {
+impl ToDevice for AnchorBatchTargets {
+    fn to_device(&self, d: Device) -> Self {
         Self {
             labels: self.labels.to_device(d),
             pos_index: self.pos_index.to_device(d),
@@ -136,6 +149,68 @@ pub struct AnchorHead {
     conv_box: nn::Conv2D,
     conv_dir: nn::Conv2D,
     code_weights: Tensor,
+    /// `[N, 7]` anchors of the map, in the order of the outputs.
+    anchors: Tensor,
+}
+
+impl DenseHead for AnchorHead {
+    type Output = AnchorOutput;
+    type Targets = AnchorBatchTargets;
+
+    fn forward_t(&self, bev: &Tensor, _train: bool) -> AnchorOutput {
+        self.forward(bev)
+    }
+
+    fn loss(&self, out: &AnchorOutput, t: &AnchorBatchTargets, losses: &mut LossTerms) {
+        let (_, [cls, loc, dir]) = AnchorHead::loss(self, out, t);
+        losses.add("cls", cls);
+        losses.add("loc", loc);
+        losses.add("dir", dir);
+    }
+
+    fn candidates(&self, out: &AnchorOutput, frame: i64, score_threshold: f64, pre_max: i64) -> Candidates {
+        let (boxes, scores, labels) = AnchorHead::candidates(self, out, &self.anchors, frame, score_threshold, pre_max);
+        Candidates { boxes, scores, labels }
+    }
+}
+
+/// Anchors and per-class thresholds: the anchor head's targets ([`axis_aligned::assign`]).
+pub struct AnchorAssigner {
+    pub anchors: Anchors,
+    pub classes: Vec<AnchorClassConfig>,
+}
+
+impl TargetAssigner for AnchorAssigner {
+    type Frame = AnchorTargets;
+    type Batch = AnchorBatchTargets;
+
+    fn assign(&self, boxes: &[Box3d], classes: &[usize]) -> AnchorTargets {
+        axis_aligned::assign(&self.anchors, &self.classes, boxes, classes)
+    }
+
+    /// Positives are weighted by 1 / (positives of their frame).
+    fn collate(&self, frames: &[&AnchorTargets]) -> AnchorBatchTargets {
+        let b = frames.len() as i64;
+        let n = self.anchors.len() as i64;
+        let mut labels = Vec::with_capacity(frames.len() * self.anchors.len());
+        let (mut idx, mut codes, mut dir, mut w) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for (k, t) in frames.iter().enumerate() {
+            labels.extend_from_slice(&t.labels);
+            idx.extend(t.pos_index.iter().map(|&i| i + k as i64 * n));
+            codes.extend_from_slice(&t.pos_codes);
+            dir.extend_from_slice(&t.pos_dir);
+            let inv = 1.0 / t.pos_index.len().max(1) as f32;
+            w.extend(std::iter::repeat_n(inv, t.pos_index.len()));
+        }
+        let p = idx.len() as i64;
+        AnchorBatchTargets {
+            labels: Tensor::from_slice(&labels).view([b, n]),
+            pos_index: Tensor::from_slice(&idx),
+            pos_codes: Tensor::from_slice(&codes).view([p, 7]),
+            pos_dir: Tensor::from_slice(&dir),
+            pos_weight: Tensor::from_slice(&w),
+        }
+    }
 }
 
 impl AnchorHead {

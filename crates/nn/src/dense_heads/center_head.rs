@@ -10,8 +10,11 @@ use serde::{Deserialize, Serialize};
 use tch::nn::{self, ModuleT};
 use tch::{Device, Kind, Tensor};
 
-use crate::losses;
-use crate::target_assigner::center::{CenterMap, CenterTargetConfig, CENTER_CODE_SIZE};
+use pi3det_geometry::Box3d;
+
+use super::{Candidates, DenseHead, TargetAssigner, ToDevice};
+use crate::losses::{self, LossTerms};
+use crate::target_assigner::center::{self, CenterMap, CenterTargetConfig, CenterTargets, CENTER_CODE_SIZE};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -47,7 +50,15 @@ impl Default for CenterHeadConfig {
 const REG_HEADS: [(&str, i64); 4] = [("center", 2), ("center_z", 1), ("dim", 3), ("rot", 2)];
 
 impl CenterHeadConfig {
-    pub fn init(&self, vs: nn::Path, in_channels: i64, num_classes: i64, bn: &crate::BatchNorm) -> CenterHead {
+    /// The head on a map of geometry `map`.
+    pub fn init(
+        &self,
+        vs: nn::Path,
+        in_channels: i64,
+        num_classes: i64,
+        bn: &crate::BatchNorm,
+        map: &CenterMap,
+    ) -> CenterHead {
         let c = self.shared_channels;
         let conv3 = |p: nn::Path, i: i64, o: i64, bias: bool, bs: f64| {
             nn::conv2d(
@@ -79,6 +90,46 @@ impl CenterHeadConfig {
             hm: head("hm", num_classes, -2.19),
             reg: REG_HEADS.iter().map(|(n, o)| head(n, *o, 0.0)).collect(),
             code_weights: Tensor::from_slice(&self.code_weights.map(|v| v as f32)).to_device(vs.device()),
+            map: *map,
+        }
+    }
+
+    pub fn assigner(&self, map: &CenterMap, num_classes: usize) -> CenterAssigner {
+        CenterAssigner { cfg: self.targets, map: *map, num_classes }
+    }
+}
+
+/// Gaussian heatmaps and centre codes ([`center::assign`]).
+pub struct CenterAssigner {
+    pub cfg: CenterTargetConfig,
+    pub map: CenterMap,
+    pub num_classes: usize,
+}
+
+impl TargetAssigner for CenterAssigner {
+    type Frame = CenterTargets;
+    type Batch = CenterBatchTargets;
+
+    fn assign(&self, boxes: &[Box3d], classes: &[usize]) -> CenterTargets {
+        center::assign(&self.cfg, &self.map, self.num_classes, boxes, classes)
+    }
+
+    fn collate(&self, frames: &[&CenterTargets]) -> CenterBatchTargets {
+        let b = frames.len() as i64;
+        let (h, w) = (self.map.h as i64, self.map.w as i64);
+        let c = self.num_classes as i64;
+        let mut hm = Vec::with_capacity((b * c * h * w) as usize);
+        let (mut idx, mut codes) = (Vec::new(), Vec::new());
+        for (k, t) in frames.iter().enumerate() {
+            hm.extend_from_slice(&t.heatmap);
+            idx.extend(t.index.iter().map(|&i| i + k as i64 * h * w));
+            codes.extend_from_slice(&t.codes);
+        }
+        let kk = idx.len() as i64;
+        CenterBatchTargets {
+            heatmap: Tensor::from_slice(&hm).view([b, c, h, w]),
+            index: Tensor::from_slice(&idx),
+            codes: Tensor::from_slice(&codes).view([kk, CENTER_CODE_SIZE as i64]),
         }
     }
 }
@@ -98,8 +149,8 @@ pub struct CenterBatchTargets {
     pub codes: Tensor,
 }
 
-impl CenterBatchTargets {
-    pub fn to_device(&self, d: Device) -> Self {
+impl ToDevice for CenterBatchTargets {
+    fn to_device(&self, d: Device) -> Self {
         Self { heatmap: self.heatmap.to_device(d), index: self.index.to_device(d), codes: self.codes.to_device(d) }
     }
 }
@@ -111,6 +162,28 @@ pub struct CenterHead {
     hm: nn::SequentialT,
     reg: Vec<nn::SequentialT>,
     code_weights: Tensor,
+    map: CenterMap,
+}
+
+impl DenseHead for CenterHead {
+    type Output = CenterOutput;
+    type Targets = CenterBatchTargets;
+
+    fn forward_t(&self, bev: &Tensor, train: bool) -> CenterOutput {
+        CenterHead::forward_t(self, bev, train)
+    }
+
+    fn loss(&self, out: &CenterOutput, t: &CenterBatchTargets, losses: &mut LossTerms) {
+        let (_, [hm, loc]) = CenterHead::loss(self, out, t);
+        losses.add("hm", hm);
+        losses.add("loc", loc);
+    }
+
+    /// `pre_max` is ignored: the head takes `max_objects_per_frame` peaks.
+    fn candidates(&self, out: &CenterOutput, frame: i64, score_threshold: f64, _pre_max: i64) -> Candidates {
+        let (boxes, scores, labels) = CenterHead::candidates(self, out, &self.map, frame, score_threshold);
+        Candidates { boxes, scores, labels }
+    }
 }
 
 impl CenterHead {
@@ -165,7 +238,7 @@ impl CenterHead {
         let x = (ix + col(0)) * map.cell[0] + map.origin[0];
         let y = (iy + col(1)) * map.cell[1] + map.origin[1];
         let size = |j: i64| col(j).clamp(-10.0, 10.0).exp();
-        let heading = col(7).atan2(&col(6));
+        let heading = col(7).atan2(&col(6)) / self.cfg.targets.heading.factor();
         let boxes = Tensor::stack(&[x, y, col(2), size(3), size(4), size(5), heading], 1);
         (boxes.to_device(Device::Cpu), scores.to_device(Device::Cpu), labels.to_device(Device::Cpu))
     }

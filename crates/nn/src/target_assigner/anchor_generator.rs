@@ -13,8 +13,10 @@ use crate::error::{NnError, Result};
 #[serde(deny_unknown_fields)]
 pub struct AnchorClassConfig {
     pub class: String,
-    /// `[dx, dy, dz]` in metres.
-    pub size: [f64; 3],
+    /// `[dx, dy, dz]` in metres, or a list of them (a Car class that also holds vans and buses
+    /// needs more than one: a 12 m bus overlaps a 4.8 m anchor by IoU 0.35, below any matching
+    /// threshold).
+    pub size: AnchorSizes,
     /// z of the anchor's bottom face (after the config's z shift).
     pub bottom_z: f64,
     #[serde(default = "default_rotations")]
@@ -25,13 +27,38 @@ pub struct AnchorClassConfig {
     pub unmatched_threshold: f64,
 }
 
+/// One anchor size or several.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum AnchorSizes {
+    One([f64; 3]),
+    Many(Vec<[f64; 3]>),
+}
+
+impl AnchorSizes {
+    pub fn as_slice(&self) -> &[[f64; 3]] {
+        match self {
+            Self::One(s) => std::slice::from_ref(s),
+            Self::Many(v) => v,
+        }
+    }
+}
+
+impl From<[f64; 3]> for AnchorSizes {
+    fn from(s: [f64; 3]) -> Self {
+        Self::One(s)
+    }
+}
+
 fn default_rotations() -> Vec<f64> {
     vec![0.0, std::f64::consts::FRAC_PI_2]
 }
 
 impl AnchorClassConfig {
     pub fn validate(&self) -> Result<()> {
-        let bad = self.size.iter().any(|v| !v.is_finite() || *v <= 0.0)
+        let sizes = self.size.as_slice();
+        let bad = sizes.is_empty()
+            || sizes.iter().flatten().any(|v| !v.is_finite() || *v <= 0.0)
             || self.rotations.is_empty()
             || self.rotations.iter().any(|r| !r.is_finite())
             || !self.bottom_z.is_finite()
@@ -75,9 +102,11 @@ impl Anchors {
     ) -> Self {
         let mut slots: Vec<(usize, Box3d)> = Vec::new();
         for (class, c) in per_class {
-            for &r in &c.rotations {
-                let b = Box3d::new(0.0, 0.0, c.bottom_z + 0.5 * c.size[2], c.size[0], c.size[1], c.size[2], r);
-                slots.push((*class, b));
+            for size in c.size.as_slice() {
+                for &r in &c.rotations {
+                    let b = Box3d::new(0.0, 0.0, c.bottom_z + 0.5 * size[2], size[0], size[1], size[2], r);
+                    slots.push((*class, b));
+                }
             }
         }
         let a = slots.len();
@@ -117,7 +146,7 @@ mod tests {
     fn layout_order() {
         let car = AnchorClassConfig {
             class: "Car".into(),
-            size: [4.0, 2.0, 1.5],
+            size: [4.0, 2.0, 1.5].into(),
             bottom_z: -1.0,
             rotations: default_rotations(),
             matched_threshold: 0.6,
@@ -125,7 +154,7 @@ mod tests {
         };
         let ped = AnchorClassConfig {
             class: "Pedestrian".into(),
-            size: [0.8, 0.6, 1.7],
+            size: [0.8, 0.6, 1.7].into(),
             rotations: vec![0.0],
             ..car.clone()
         };
@@ -136,5 +165,30 @@ mod tests {
         let b = a.boxes[(3 + 2) * 3 + 1];
         assert_eq!((b.x, b.y, b.z, b.heading), (1.5, 3.0, -0.25, std::f64::consts::FRAC_PI_2));
         assert_eq!(a.to_tensor().size(), vec![18, 7]);
+    }
+
+    #[test]
+    fn several_sizes_per_class_each_get_every_rotation() {
+        let car = AnchorClassConfig {
+            class: "Car".into(),
+            size: AnchorSizes::Many(vec![[4.8, 2.1, 1.7], [11.0, 2.6, 3.2]]),
+            bottom_z: 0.0,
+            rotations: default_rotations(),
+            matched_threshold: 0.6,
+            unmatched_threshold: 0.45,
+        };
+        car.validate().unwrap();
+        let a = Anchors::generate(&[(0, car.clone())], 1, 1, [1.0, 1.0], [0.0, 0.0]);
+        assert_eq!(a.per_location, 4);
+        assert_eq!(a.boxes.iter().map(|b| (b.dx, b.heading)).collect::<Vec<_>>()[2], (11.0, 0.0));
+        assert_eq!(a.boxes[3].z, 1.6, "bottom on bottom_z");
+        // A TOML list of sizes and a single size both parse.
+        let one: AnchorClassConfig = toml::from_str(
+            "class = \"Car\"\nsize = [4.2, 2.0, 1.6]\nbottom_z = 0.0\nmatched_threshold = 0.6\nunmatched_threshold = 0.45",
+        )
+        .unwrap();
+        assert_eq!(one.size.as_slice().len(), 1);
+        let bad = AnchorClassConfig { size: AnchorSizes::Many(vec![]), ..car };
+        assert!(bad.validate().is_err());
     }
 }

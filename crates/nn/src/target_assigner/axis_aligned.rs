@@ -152,7 +152,7 @@ mod tests {
         vec![
             AnchorClassConfig {
                 class: "Car".into(),
-                size: [4.0, 2.0, 1.5],
+                size: [4.0, 2.0, 1.5].into(),
                 bottom_z: -1.0,
                 rotations: vec![0.0, std::f64::consts::FRAC_PI_2],
                 matched_threshold: 0.6,
@@ -160,7 +160,7 @@ mod tests {
             },
             AnchorClassConfig {
                 class: "Pedestrian".into(),
-                size: [0.8, 0.6, 1.7],
+                size: [0.8, 0.6, 1.7].into(),
                 bottom_z: -1.0,
                 rotations: vec![0.0, std::f64::consts::FRAC_PI_2],
                 matched_threshold: 0.5,

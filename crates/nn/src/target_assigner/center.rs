@@ -2,7 +2,10 @@
 //! per class a BEV heatmap with a Gaussian at each box centre (radius from the box size, CornerNet
 //! `gaussian_radius` with min overlap 0.1, at least `min_radius` cells), and per box the index of
 //! its centre cell and its regression code `[Δx, Δy, z, log dx, log dy, log dz, cos θ, sin θ]`
-//! (Δ: offset of the centre inside its cell, in cells).
+//! (Δ: offset of the centre inside its cell, in cells). With `heading = "double_angle"` the last
+//! two are `cos 2θ, sin 2θ`: the heading modulo π, for data whose objects look the same from
+//! front and back, where an L1 fit of `cos θ, sin θ` to targets that flip by π averages to a
+//! vector of no length and a random heading (BEV and 3D AP do not see the direction).
 
 use pi3det_geometry::Box3d;
 use serde::{Deserialize, Serialize};
@@ -17,11 +20,41 @@ pub struct CenterTargetConfig {
     pub min_radius: usize,
     /// At most this many boxes per frame get regression targets.
     pub max_objects: usize,
+    pub heading: HeadingCode,
+}
+
+/// How the heading is regressed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum HeadingCode {
+    /// `cos θ, sin θ` (OpenPCDet).
+    #[default]
+    Full,
+    /// `cos 2θ, sin 2θ`: θ modulo π.
+    DoubleAngle,
+}
+
+impl HeadingCode {
+    pub fn factor(self) -> f64 {
+        match self {
+            Self::Full => 1.0,
+            Self::DoubleAngle => 2.0,
+        }
+    }
+
+    pub fn encode(self, heading: f64) -> [f32; 2] {
+        let a = heading * self.factor();
+        [a.cos() as f32, a.sin() as f32]
+    }
+
+    pub fn decode(self, cos: f64, sin: f64) -> f64 {
+        sin.atan2(cos) / self.factor()
+    }
 }
 
 impl Default for CenterTargetConfig {
     fn default() -> Self {
-        Self { gaussian_overlap: 0.1, min_radius: 2, max_objects: 500 }
+        Self { gaussian_overlap: 0.1, min_radius: 2, max_objects: 500, heading: HeadingCode::Full }
     }
 }
 
@@ -121,15 +154,15 @@ pub fn assign(
             b.dx.max(1e-3).ln() as f32,
             b.dy.max(1e-3).ln() as f32,
             b.dz.max(1e-3).ln() as f32,
-            b.heading.cos() as f32,
-            b.heading.sin() as f32,
+            cfg.heading.encode(b.heading)[0],
+            cfg.heading.encode(b.heading)[1],
         ]);
     }
     t
 }
 
 /// Decodes a code at cell `(ix, iy)` (Rust side; the head decodes on tensors).
-pub fn decode(code: &[f32; CENTER_CODE_SIZE], ix: usize, iy: usize, map: &CenterMap) -> Box3d {
+pub fn decode(code: &[f32; CENTER_CODE_SIZE], ix: usize, iy: usize, map: &CenterMap, heading: HeadingCode) -> Box3d {
     let c = code.map(f64::from);
     Box3d {
         x: (ix as f64 + c[0]) * map.cell[0] + map.origin[0],
@@ -138,7 +171,7 @@ pub fn decode(code: &[f32; CENTER_CODE_SIZE], ix: usize, iy: usize, map: &Center
         dx: c[3].exp(),
         dy: c[4].exp(),
         dz: c[5].exp(),
-        heading: c[7].atan2(c[6]),
+        heading: heading.decode(c[6], c[7]),
     }
 }
 
@@ -176,7 +209,7 @@ mod tests {
                 assert!(hm[idx as usize - 2] > 0.0);
             }
             let code: [f32; 8] = t.codes[j * 8..j * 8 + 8].try_into().unwrap();
-            let b = decode(&code, ix, iy, &map);
+            let b = decode(&code, ix, iy, &map, cfg.heading);
             let g = &gt[j];
             for (a, e) in b.to_array().iter().zip(g.to_array()) {
                 assert!((a - e).abs() < 1e-5, "{b:?} vs {g:?}");
@@ -186,5 +219,22 @@ mod tests {
         let car = &t.heatmap[..map.h * map.w];
         assert_eq!(car.iter().filter(|&&v| v == 1.0).count(), 1);
         assert!(t.heatmap.iter().all(|v| (0.0..=1.0).contains(v)));
+    }
+
+    #[test]
+    fn double_angle_heading_is_the_heading_modulo_pi() {
+        let map = CenterMap { h: 20, w: 30, cell: [0.5, 0.5], origin: [-5.0, -5.0] };
+        let cfg = CenterTargetConfig { heading: HeadingCode::DoubleAngle, ..Default::default() };
+        let front = Box3d::new(1.3, 0.2, -1.0, 4.2, 1.9, 1.6, 0.4);
+        let back = Box3d { heading: 0.4 - std::f64::consts::PI, ..front };
+        let a = assign(&cfg, &map, 1, &[front], &[0]);
+        let b = assign(&cfg, &map, 1, &[back], &[0]);
+        for (x, y) in a.codes.iter().zip(&b.codes) {
+            assert!((x - y).abs() < 1e-6, "a car and the same car turned by π get one target");
+        }
+        let code: [f32; 8] = a.codes[..8].try_into().unwrap();
+        let idx = a.index[0] as usize;
+        let d = decode(&code, idx % map.w, idx / map.w, &map, cfg.heading);
+        assert!((d.heading - 0.4).abs() < 1e-6);
     }
 }

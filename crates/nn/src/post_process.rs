@@ -1,0 +1,62 @@
+//! Post-processing of candidate boxes: score threshold and rotated NMS (OpenPCDet semantics;
+//! per class or over all classes at once).
+
+use pi3det_geometry::{nms, Box3d, NmsConfig};
+use tch::Kind;
+
+use crate::config::PostConfig;
+use crate::dense_heads::Candidates;
+
+/// One detection in the detector's frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Detection {
+    pub box3d: Box3d,
+    pub score: f64,
+    pub class: usize,
+}
+
+/// Candidates as detections (non-finite ones dropped, headings wrapped).
+pub fn to_detections(c: &Candidates) -> Vec<Detection> {
+    let b: Vec<f32> = Vec::try_from(c.boxes.to_kind(Kind::Float).reshape([-1])).unwrap_or_default();
+    let s: Vec<f32> = Vec::try_from(c.scores.to_kind(Kind::Float)).unwrap_or_default();
+    let l: Vec<i64> = Vec::try_from(c.labels.to_kind(Kind::Int64)).unwrap_or_default();
+    (0..s.len().min(l.len()).min(b.len() / 7))
+        .filter(|&k| b[k * 7..k * 7 + 7].iter().all(|v| v.is_finite()) && s[k].is_finite())
+        .map(|k| {
+            let a: [f64; 7] = std::array::from_fn(|j| b[k * 7 + j] as f64);
+            Detection { box3d: Box3d::from_array(a).with_wrapped_heading(), score: s[k] as f64, class: l[k] as usize }
+        })
+        .collect()
+}
+
+/// Rotated NMS with the thresholds of `post` (`iou`, `pre_max`, `post_max`), per class when
+/// `post.per_class_nms`; the result is sorted by score.
+pub fn nms_detections(
+    dets: &[Detection],
+    post: &PostConfig,
+    num_classes: usize,
+    iou: f64,
+    post_max: usize,
+) -> Vec<Detection> {
+    let cfg = NmsConfig {
+        iou_threshold: iou,
+        score_threshold: post.score_threshold,
+        pre_max_size: post.nms_pre_max,
+        post_max_size: post_max,
+    };
+    let run = |subset: &[Detection]| -> Vec<Detection> {
+        let boxes: Vec<Box3d> = subset.iter().map(|d| d.box3d).collect();
+        let scores: Vec<f64> = subset.iter().map(|d| d.score).collect();
+        nms(&boxes, &scores, &cfg).into_iter().map(|k| subset[k]).collect()
+    };
+    if post.per_class_nms {
+        let mut out: Vec<Detection> = (0..num_classes)
+            .flat_map(|c| run(&dets.iter().copied().filter(|d| d.class == c).collect::<Vec<_>>()))
+            .collect();
+        out.sort_by(|a, b| b.score.total_cmp(&a.score));
+        out.truncate(post_max);
+        out
+    } else {
+        run(dets)
+    }
+}

@@ -1,0 +1,87 @@
+//! Second stage: a RoI head that refines the dense head's boxes from the BEV feature map (in the
+//! spirit of Voxel R-CNN / CenterPoint's two-stage head, but pooling bilinear samples of the 2D
+//! BEV map instead of 3D voxel features, so that it stays cheap on two CPU cores).
+//!
+//! | module | what |
+//! | --- | --- |
+//! | [`proposal`] | dense-head candidates → rotated NMS → proposals (RoIs), padded per batch |
+//! | [`roi_sampler`] | OpenPCDet `ProposalTargetLayer`: class-aware 3D IoU, fg / hard bg / easy bg sampling, IoU-guided score targets |
+//! | [`roi_coder`] | box residuals in each RoI's own frame (encode in Rust, decode on tensors), corner loss |
+//! | [`bev_roi_pool`] | bilinear RoI pooling on the BEV map: `G × G` lattice or centre + 4 face centres |
+//! | [`roi_head`] | the head (point layer, shared MLP, IoU and box branches), its losses and the refinement |
+//!
+//! Training flow (per step, after the dense head): candidates of each frame →
+//! [`ProposalConfig::select`] (train limits) → [`RoiSamplerConfig::sample`] with the frame's GT →
+//! [`RoiBatchTargets::collate`] → [`RoiHead::forward_t`] on `targets.rois` → [`RoiHead::loss`].
+//! Inference: [`ProposalConfig::select`] (test limits) → [`ProposalBatch::collate`] →
+//! [`RoiHead::forward_t`] → [`RoiHead::refine`] (then the detector's usual NMS, if wanted).
+//!
+//! Every box is `[x, y, z_center, dx, dy, dz, heading]` in the detector's (shifted) frame, the
+//! frame the dense head predicts in and the BEV map is laid out in (see
+//! [`crate::target_assigner::center::CenterMap`]).
+
+pub mod bev_roi_pool;
+pub mod proposal;
+pub mod roi_coder;
+pub mod roi_head;
+pub mod roi_sampler;
+
+pub use bev_roi_pool::{BevRoiPool, BevRoiPoolConfig, PoolLayout};
+pub use proposal::{ProposalBatch, ProposalConfig, Proposals};
+pub use roi_coder::{boxes_to_corners, corner_loss, RoiCoder};
+pub use roi_head::{RoiHead, RoiHeadConfig, RoiLosses, RoiOutput, ScoreFusion, ScoreTarget};
+pub use roi_sampler::{FrameSample, RoiBatchTargets, RoiCategory, RoiSamplerConfig};
+
+use rand_chacha::ChaCha8Rng;
+use tch::Tensor;
+
+use crate::data_loader::FrameGt;
+use crate::error::Result;
+use crate::losses::LossTerms;
+use crate::target_assigner::CenterMap;
+
+/// What the detector asks of a second stage; [`RoiHead`] is the one there is. Its outputs carry
+/// the pooled RoI feature vectors with the boxes they belong to ([`RoiOutput::features`],
+/// [`RoiOutput::rois`]) for losses that align features across domains.
+pub trait SecondStage {
+    fn proposal_config(&self) -> &ProposalConfig;
+    /// Training RoIs and their targets from each frame's proposals and ground truth.
+    fn sample(&self, proposals: &[Proposals], gt: &[FrameGt], rng: &mut ChaCha8Rng) -> Result<RoiBatchTargets>;
+    /// `bev [B, C, H, W]`, `rois [B, N, 7]` → per-RoI features, score logits and box codes.
+    fn forward_t(&self, bev: &Tensor, rois: &Tensor, map: &CenterMap, train: bool) -> Result<RoiOutput>;
+    /// Adds the stage's named loss terms.
+    fn loss(&self, out: &RoiOutput, targets: &RoiBatchTargets, losses: &mut LossTerms) -> Result<()>;
+    /// Refined boxes `[B, N, 7]` (detector frame) and final scores `[B, N]`.
+    fn refine(&self, out: &RoiOutput, rois: &Tensor, roi_scores: &Tensor) -> (Tensor, Tensor);
+}
+
+impl SecondStage for RoiHead {
+    fn proposal_config(&self) -> &ProposalConfig {
+        &self.cfg.proposal
+    }
+
+    fn sample(&self, proposals: &[Proposals], gt: &[FrameGt], rng: &mut ChaCha8Rng) -> Result<RoiBatchTargets> {
+        let frames = proposals
+            .iter()
+            .zip(gt)
+            .map(|(p, g)| self.cfg.sampler.sample(p, &g.boxes, &g.classes, rng))
+            .collect::<Result<Vec<_>>>()?;
+        RoiBatchTargets::collate(&frames)
+    }
+
+    fn forward_t(&self, bev: &Tensor, rois: &Tensor, map: &CenterMap, train: bool) -> Result<RoiOutput> {
+        RoiHead::forward_t(self, bev, rois, map, train)
+    }
+
+    fn loss(&self, out: &RoiOutput, targets: &RoiBatchTargets, losses: &mut LossTerms) -> Result<()> {
+        let l = RoiHead::loss(self, out, targets)?;
+        for (name, t) in l.terms() {
+            losses.add(name, t.shallow_clone());
+        }
+        Ok(())
+    }
+
+    fn refine(&self, out: &RoiOutput, rois: &Tensor, roi_scores: &Tensor) -> (Tensor, Tensor) {
+        RoiHead::refine(self, out, rois, roi_scores)
+    }
+}
