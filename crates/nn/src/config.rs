@@ -376,8 +376,16 @@ mod tests {
     #[test]
     fn presets_parse() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
-        for name in ["pointpillars_cpu.toml", "pointpillars_paper.toml", "centerpoint_cpu.toml"] {
-            DetectorConfig::from_file(&dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        for name in [
+            "pointpillars_cpu.toml",
+            "pointpillars_paper.toml",
+            "centerpoint_cpu.toml",
+            "pointpillars_rcnn_cpu.toml",
+            "centerpoint_rcnn_cpu.toml",
+            "pointpillars_rcnn_paper.toml",
+        ] {
+            let cfg = DetectorConfig::from_file(&dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert_eq!(cfg.roi_head.is_some(), name.contains("rcnn"), "{name}");
         }
     }
 }
