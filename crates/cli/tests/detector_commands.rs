@@ -70,6 +70,26 @@ fn demo_then_detect_then_eval() {
     let err = String::from_utf8_lossy(&train.stderr);
     assert!(err.contains(".safetensors") && err.contains("--overwrite"), "{err}");
     assert!(ckpt.is_file());
+    // train reads the config's frame limits; --max-frames / --max-val-frames override them.
+    let text = std::fs::read_to_string(&config).unwrap();
+    let limited = dir.join("limited.toml");
+    std::fs::write(&limited, text.replace("[train]\n", "[train]\nmax_train_frames = 3\nmax_eval_frames = 1\n"))
+        .unwrap();
+    let (limited, train_dir, val_s) = (s(&limited), s(&dir.join("data/vehicle/train")), s(&val));
+    let args =
+        ["train", "--config", &limited, "--data", &train_dir, "--val", &val_s, "--epochs", "1", "--device", "cpu"];
+    let pp = s(&dir.join("pp"));
+    let pp2 = s(&dir.join("pp2"));
+    let out = pi3det(&[&args[..], &["--out", &pp]].concat());
+    ok(&out, "train");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("3 training frames, 1 validation frames"), "{err}");
+    let out = pi3det(&[&args[..], &["--out", &pp2, "--max-frames", "2", "--max-val-frames", "2"]].concat());
+    ok(&out, "train --max-frames");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("2 training frames, 2 validation frames"), "{err}");
+    let saved = std::fs::read_to_string(dir.join("pp2/config.toml")).unwrap();
+    assert!(saved.contains("max_train_frames = 2") && saved.contains("max_eval_frames = 2"), "{saved}");
     for f in ["result.pkl", "detections.jsonl"] {
         let out = ok(&pi3det(&["eval", "--gt", &s(&val), "--det", &s(&det.join(f)), "--json"]), "eval");
         let _: serde_json::Value = serde_json::from_str(&out).unwrap_or_else(|e| panic!("eval --json: {e}\n{out}"));

@@ -61,18 +61,21 @@ pub struct DataArgs {
     /// Only frames of this platform.
     #[arg(long, value_parser = parse_platform)]
     pub platform: Option<Platform>,
-    /// At most this many frames, spread evenly.
+    /// At most this many frames, spread evenly (0: all) [train: default the config's
+    /// `train.max_train_frames`; detect: all].
     #[arg(long, value_name = "N")]
     pub max_frames: Option<usize>,
 }
 
 impl DataArgs {
-    pub fn subset(&self, default_split: &str) -> Result<Subset> {
+    /// The frames to use: `--split` (else `default_split`), `--platform`, then at most
+    /// `--max-frames` (else `default_max`; 0: all) spread evenly.
+    pub fn subset(&self, default_split: &str, default_max: usize) -> Result<Subset> {
         open_subset(
             &self.data,
             Some(self.split.as_deref().unwrap_or(default_split)),
             self.platform,
-            self.max_frames.unwrap_or(0),
+            self.max_frames.unwrap_or(default_max),
         )
     }
 }
@@ -96,7 +99,8 @@ pub struct TrainArgs {
     /// Validation data for periodic evaluation (its `val` split when it is a multi-split folder).
     #[arg(long, value_name = "PATH")]
     pub val: Option<PathBuf>,
-    /// At most this many validation frames.
+    /// At most this many validation frames, spread evenly (0: all) [default: the config's
+    /// `train.max_eval_frames`].
     #[arg(long, value_name = "N")]
     pub max_val_frames: Option<usize>,
     /// Output folder: checkpoints, config, evaluation reports.
@@ -180,26 +184,41 @@ pub fn train_with_progress(opts: TrainOptions, quiet: bool) -> Result<train::Tra
     Ok(r)
 }
 
+impl TrainArgs {
+    /// The config file with the command line's overrides (epochs, batch size, seed, frame
+    /// limits) written into it, so the checkpoint records what was run.
+    pub fn config(&self) -> Result<DetectorConfig> {
+        let mut cfg = DetectorConfig::from_file(&self.config)?;
+        if let Some(e) = self.epochs {
+            cfg.train.epochs = e;
+        }
+        if let Some(b) = self.batch_size {
+            cfg.train.batch_size = b;
+        }
+        if let Some(s) = self.seed {
+            cfg.train.seed = s;
+        }
+        if let Some(n) = self.data.max_frames {
+            cfg.train.max_train_frames = n;
+        }
+        if let Some(n) = self.max_val_frames {
+            cfg.train.max_eval_frames = n;
+        }
+        cfg.validate()?;
+        Ok(cfg)
+    }
+}
+
 pub fn run_train(args: &TrainArgs) -> Result<()> {
-    let mut cfg = DetectorConfig::from_file(&args.config)?;
-    if let Some(e) = args.epochs {
-        cfg.train.epochs = e;
-    }
-    if let Some(b) = args.batch_size {
-        cfg.train.batch_size = b;
-    }
-    if let Some(s) = args.seed {
-        cfg.train.seed = s;
-    }
-    cfg.validate()?;
+    let cfg = args.config()?;
     if args.resume.is_none() && !args.overwrite {
         // Any checkpoint: older epochs' files are deleted as training goes on.
         refuse_existing(&args.out, |name| name.ends_with(".safetensors"))?;
     }
     let device = args.device.setup(cfg.train.threads)?;
-    let train = args.data.subset("train")?;
+    let train = args.data.subset("train", cfg.train.max_train_frames)?;
     let val = match &args.val {
-        Some(v) => Some(open_subset(v, Some("val"), args.data.platform, args.max_val_frames.unwrap_or(0))?),
+        Some(v) => Some(open_subset(v, Some("val"), args.data.platform, cfg.train.max_eval_frames)?),
         None => None,
     };
     eprintln!(
@@ -282,7 +301,7 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     }
     let mut det = crate::Detector::new(&ck.config, device)?;
     ck.load_into(&mut det, &args.ckpt)?;
-    let subset = args.data.subset("val")?;
+    let subset = args.data.subset("val", 0)?;
     let bar = ProgressBar::new(subset.len() as u64).with_style(style("detect [{bar:30}] {pos}/{len} {elapsed}<{eta}"));
     let (frames, lat) = detect::detect(&det, &subset, args.batch_size, &mut |done, _| bar.set_position(done as u64))?;
     bar.finish_and_clear();
