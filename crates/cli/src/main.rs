@@ -1,8 +1,12 @@
 //! `pi3det`: perspective-invariant LiDAR 3D object detection (Pi3DET) from the command line.
+//!
+//! This binary does not link libtorch: the detector commands (`train`, `detect`, `demo`,
+//! `bench nn`) are listed here but run in `pi3det-torch` (crates/pipelines), see [`cmd::torch`].
 
 mod cmd;
 
 use clap::{Parser, Subcommand};
+use cmd::torch::Forwarded;
 
 #[derive(Parser)]
 #[command(name = "pi3det", version, about = "Perspective-invariant LiDAR 3D object detection toolkit")]
@@ -25,14 +29,11 @@ enum Command {
     /// Platform-discrepancy statistics, tables and figures (paper §3.3, Fig. 2), with pose-free attitude.
     Stats(pi3det_analysis::cli::StatsArgs),
     /// Train a detector (PointPillars, anchor or center head) from a TOML config.
-    #[cfg(feature = "nn")]
-    Train(pi3det_nn::cli::TrainArgs),
+    Train(Forwarded),
     /// Run a trained detector over a dataset; write JSON lines and result.pkl, with latency.
-    #[cfg(feature = "nn")]
-    Detect(pi3det_nn::cli::DetectArgs),
+    Detect(Forwarded),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
-    #[cfg(feature = "nn")]
-    Demo(pi3det_nn::cli::DemoArgs),
+    Demo(Forwarded),
     /// Benchmarks that print a table.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -43,17 +44,27 @@ enum BenchCommand {
     /// Simulator throughput (frames/s, rays/s) for a 64×1024 scan.
     Sim(pi3det_sim::cli::BenchArgs),
     /// Our detector's training step and inference against PyTorch running the same network.
-    #[cfg(feature = "nn")]
-    Nn(pi3det_nn::cli::BenchNnArgs),
+    Nn(Forwarded),
 }
 
 fn main() -> std::process::ExitCode {
+    // The detector commands, and `help` for them, go to pi3det-torch with the arguments as given.
+    let args: Vec<std::ffi::OsString> = std::env::args_os().skip(1).collect();
+    if cmd::torch::is_help_for_forwarded(&args) {
+        return finish(cmd::torch::run(&args));
+    }
+    let cli = Cli::parse();
+    if matches!(
+        cli.command,
+        Command::Train(_) | Command::Detect(_) | Command::Demo(_) | Command::Bench(BenchCommand::Nn(_))
+    ) {
+        return finish(cmd::torch::run(&args));
+    }
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
         .with_writer(std::io::stderr)
         .without_time()
         .init();
-    let cli = Cli::parse();
     if let Some(n) = cli.threads {
         // Ignored if rayon was already initialised, which cannot happen this early.
         let _ = rayon::ThreadPoolBuilder::new().num_threads(n).build_global();
@@ -64,17 +75,16 @@ fn main() -> std::process::ExitCode {
         Command::Eval(args) => pi3det_eval::cli::run(args).map_err(anyhow::Error::from),
         Command::Stats(args) => pi3det_analysis::cli::run(args).map_err(anyhow::Error::from),
         Command::Bench(BenchCommand::Sim(args)) => pi3det_sim::cli::run_bench(args).map_err(anyhow::Error::from),
-        #[cfg(feature = "nn")]
-        Command::Train(args) => pi3det_nn::cli::run_train(args).map_err(anyhow::Error::from),
-        #[cfg(feature = "nn")]
-        Command::Detect(args) => pi3det_nn::cli::run_detect(args).map_err(anyhow::Error::from),
-        #[cfg(feature = "nn")]
-        Command::Demo(args) => pi3det_nn::cli::run_demo(args).map_err(anyhow::Error::from),
-        #[cfg(feature = "nn")]
-        Command::Bench(BenchCommand::Nn(args)) => pi3det_nn::cli::run_bench_nn(args).map_err(anyhow::Error::from),
+        Command::Train(_) | Command::Detect(_) | Command::Demo(_) | Command::Bench(BenchCommand::Nn(_)) => {
+            unreachable!("handed to pi3det-torch above")
+        }
     };
+    finish(result.map(|()| std::process::ExitCode::SUCCESS))
+}
+
+fn finish(result: anyhow::Result<std::process::ExitCode>) -> std::process::ExitCode {
     match result {
-        Ok(()) => std::process::ExitCode::SUCCESS,
+        Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
             std::process::ExitCode::FAILURE

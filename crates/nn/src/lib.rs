@@ -19,7 +19,7 @@
 //! | [`data_loader`], [`train`], [`optim`], [`checkpoint`] | batches on a background thread, the training loop, AdamW + one-cycle, safetensors checkpoints |
 //! | [`detect`], [`eval`] | inference over a dataset, JSON lines / `result.pkl`, evaluation with `pi3det-eval` |
 //! | [`bench`](mod@bench) | the side-by-side benchmark against PyTorch (`python/bench_pointpillars.py`) |
-//! | `cli` (feature `cli`) | `pi3det train / detect / demo / bench nn` |
+//! | `cli` (feature `cli`) | `pi3det train / detect / bench nn` (mounted by `pi3det-torch`, crates/pipelines) |
 //!
 //! Devices: [`device`] picks CUDA when libtorch's CUDA library loads and finds a GPU
 //! (`--device auto`), else the CPU; on the CPU the BEV network runs channels-last (oneDNN) and

@@ -1,3 +1,4 @@
-//! One module per subcommand.
+//! One module per subcommand (`torch`: the detector commands, handed to `pi3det-torch`).
 
 pub mod info;
+pub mod torch;

@@ -1,0 +1,114 @@
+//! The detector commands (`train`, `detect`, `demo`, `bench nn`) run in a separate executable,
+//! `pi3det-torch` (crates/pipelines), the only one that links libtorch: `pi3det` itself never
+//! loads it, so the other commands start in milliseconds. `pi3det` lists these commands in its
+//! help and hands each over with its arguments verbatim (on Unix by `exec`, so the exit status,
+//! signals and terminal are the child's own).
+//!
+//! `pi3det-torch` is looked for in `$PI3DET_TORCH` (a path), then beside this executable, then
+//! on `PATH`.
+
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+
+/// The executable's file name.
+pub const EXE: &str = "pi3det-torch";
+
+/// A command that runs in `pi3det-torch`: its arguments, unparsed (`pi3det <command> --help`
+/// shows its options).
+#[derive(clap::Args, Debug)]
+#[command(disable_help_flag = true)]
+pub struct Forwarded {
+    /// Arguments for the command (see `pi3det <command> --help`).
+    #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0.., value_name = "ARGS")]
+    pub args: Vec<OsString>,
+}
+
+/// Whether `args` (without the program name) ask for `help` of a detector command, e.g.
+/// `pi3det help train` or `pi3det --threads 2 help bench nn`: that help lives in pi3det-torch.
+pub fn is_help_for_forwarded(args: &[OsString]) -> bool {
+    let mut words = Vec::new();
+    let mut it = args.iter().map(|a| a.to_str().unwrap_or(""));
+    while let Some(a) = it.next() {
+        if a == "--threads" {
+            it.next();
+        } else if !a.starts_with('-') {
+            words.push(a);
+        }
+        if words.len() == 3 {
+            break;
+        }
+    }
+    matches!(words.as_slice(), ["help", "train" | "detect" | "demo", ..] | ["help", "bench", "nn"])
+}
+
+fn is_file(p: &Path) -> bool {
+    p.metadata().is_ok_and(|m| m.is_file())
+}
+
+/// Where `pi3det-torch` is: `$PI3DET_TORCH`, beside this executable, on `PATH`.
+pub fn locate() -> anyhow::Result<PathBuf> {
+    if let Some(p) = std::env::var_os("PI3DET_TORCH").filter(|p| !p.is_empty()) {
+        let p = PathBuf::from(p);
+        if !is_file(&p) {
+            bail!("PI3DET_TORCH={} is not a file", p.display());
+        }
+        return Ok(p);
+    }
+    let exe = std::env::current_exe().ok();
+    let beside = exe.as_deref().and_then(Path::parent).map(|d| d.join(EXE));
+    if let Some(p) = beside.as_ref().filter(|p| is_file(p)) {
+        return Ok(p.clone());
+    }
+    if let Some(path) = std::env::var_os("PATH") {
+        if let Some(p) = std::env::split_paths(&path).map(|d| d.join(EXE)).find(|p| is_file(p)) {
+            return Ok(p);
+        }
+    }
+    bail!(
+        "the detector commands (train, detect, demo, bench nn) run in the {EXE} executable, which is neither beside {} nor on PATH; \
+         build it with `cargo build --release -p pi3det-pipelines` (scripts/demo builds both binaries; it needs libtorch, see scripts/setup-torch), \
+         or set PI3DET_TORCH to its path",
+        exe.as_deref().map_or_else(|| "this executable".into(), |e| e.display().to_string())
+    )
+}
+
+/// Runs `pi3det-torch` with `args` (this process's arguments without the program name) and
+/// returns its exit status; on Unix the process is replaced and this returns only on failure.
+pub fn run(args: &[OsString]) -> anyhow::Result<std::process::ExitCode> {
+    let exe = locate()?;
+    let mut cmd = std::process::Command::new(&exe);
+    cmd.args(args);
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::CommandExt;
+        // Its help and errors then name `pi3det`, the command the user typed.
+        let err = cmd.arg0("pi3det").exec();
+        Err(err).with_context(|| format!("running {}", exe.display()))
+    }
+    #[cfg(not(unix))]
+    {
+        let status = cmd.status().with_context(|| format!("running {}", exe.display()))?;
+        Ok(std::process::ExitCode::from(status.code().map_or(1, |c| c.clamp(0, 255) as u8)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn v(args: &[&str]) -> Vec<OsString> {
+        args.iter().map(OsString::from).collect()
+    }
+
+    #[test]
+    fn help_for_forwarded_commands() {
+        assert!(is_help_for_forwarded(&v(&["help", "train"])));
+        assert!(is_help_for_forwarded(&v(&["--threads", "2", "help", "bench", "nn"])));
+        assert!(!is_help_for_forwarded(&v(&["help", "bench", "sim"])));
+        assert!(!is_help_for_forwarded(&v(&["help", "eval"])));
+        assert!(!is_help_for_forwarded(&v(&["help"])));
+        assert!(!is_help_for_forwarded(&v(&["train", "--help"])), "not `help`: clap dispatches that");
+    }
+}

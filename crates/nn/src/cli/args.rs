@@ -1,0 +1,87 @@
+//! Arguments shared by the detector commands: device and libtorch threads, a dataset and the part
+//! of it to use.
+
+use std::path::{Path, PathBuf};
+
+use pi3det_data::Platform;
+
+use crate::data_loader::{open_split, Subset};
+use crate::device::{self, DeviceChoice};
+use crate::error::Result;
+
+/// Device and libtorch threads.
+#[derive(clap::Args, Debug, Clone)]
+pub struct DeviceArgs {
+    /// cpu, cuda or auto (CUDA when libtorch finds a GPU).
+    #[arg(long, default_value = "auto")]
+    pub device: DeviceChoice,
+    /// libtorch intra-op threads on the CPU [default: the config's `train.threads`, else
+    /// $PI3DET_TORCH_THREADS, else every core; on a machine busy with other work 1 can be faster].
+    #[arg(long, value_name = "N")]
+    pub torch_threads: Option<usize>,
+}
+
+impl DeviceArgs {
+    /// Sets libtorch's threads (`configured`: the config's `train.threads`) and resolves the
+    /// device.
+    pub fn setup(&self, configured: usize) -> Result<tch::Device> {
+        let n = self.threads(configured);
+        device::set_threads(n);
+        let d = device::resolve(self.device)?;
+        tracing::info!("device {d:?}, {n} libtorch thread(s)");
+        Ok(d)
+    }
+
+    /// The libtorch threads `setup` uses.
+    pub fn threads(&self, configured: usize) -> usize {
+        self.torch_threads.unwrap_or_else(|| device::default_threads(configured))
+    }
+}
+
+pub fn parse_platform(s: &str) -> std::result::Result<Platform, String> {
+    match Platform::parse(s) {
+        Platform::Unknown => Err(format!("unknown platform {s:?} (vehicle, drone, quadruped)")),
+        p => Ok(p),
+    }
+}
+
+/// A dataset and the part of it to use.
+#[derive(clap::Args, Debug, Clone)]
+pub struct DataArgs {
+    /// A Pi3DET folder (or info .pkl), a KITTI folder or an mmdet3d info .pkl.
+    #[arg(long, value_name = "PATH")]
+    pub data: PathBuf,
+    /// When DATA is a Pi3DET folder with several info files, use pi3det_infos_<SPLIT>.pkl.
+    #[arg(long)]
+    pub split: Option<String>,
+    /// Only frames of this platform.
+    #[arg(long, value_parser = parse_platform)]
+    pub platform: Option<Platform>,
+    /// At most this many frames, spread evenly (0: all) [train: default the config's
+    /// `train.max_train_frames`; detect: all].
+    #[arg(long, value_name = "N")]
+    pub max_frames: Option<usize>,
+}
+
+impl DataArgs {
+    /// The frames to use: `--split` (else `default_split`), `--platform`, then at most
+    /// `--max-frames` (else `default_max`; 0: all) spread evenly.
+    pub fn subset(&self, default_split: &str, default_max: usize) -> Result<Subset> {
+        open_subset(
+            &self.data,
+            Some(self.split.as_deref().unwrap_or(default_split)),
+            self.platform,
+            self.max_frames.unwrap_or(default_max),
+        )
+    }
+}
+
+/// A split of a dataset, optionally one platform's frames, at most `max` of them spread evenly
+/// (0: all).
+pub fn open_subset(path: &Path, split: Option<&str>, platform: Option<Platform>, max: usize) -> Result<Subset> {
+    let mut s = Subset::all(open_split(path, split)?);
+    if let Some(p) = platform {
+        s = s.platform(p)?;
+    }
+    Ok(s.take_spread(max))
+}

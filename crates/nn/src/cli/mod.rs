@@ -1,0 +1,48 @@
+//! `pi3det train`, `pi3det detect` and `pi3det bench nn`: argument structs (clap) and runners, one
+//! file per command, for a binary to mount as subcommands (`pi3det-torch`, in
+//! `crates/pipelines`, which `pi3det` hands these commands to). The demo, which needs the
+//! simulator as well, lives in `pi3det-pipelines`.
+//!
+//! | module | what |
+//! | --- | --- |
+//! | [`args`] | shared arguments: device and libtorch threads, a dataset and the part of it to use |
+//! | [`train`](mod@train) | `train`: [`TrainArgs`], [`run_train`], the progress bar ([`train_with_progress`]) |
+//! | [`detect`](mod@detect) | `detect`: [`DetectArgs`], [`run_detect`] |
+//! | [`bench`](mod@bench) | `bench nn`: [`BenchNnArgs`], [`run_bench_nn`] (frames from the caller by default) |
+
+use std::path::Path;
+
+use indicatif::ProgressStyle;
+
+use crate::error::{NnError, Result};
+
+pub mod args;
+pub mod bench;
+pub mod detect;
+pub mod train;
+
+pub use args::{open_subset, DataArgs, DeviceArgs};
+pub use bench::{run_bench_nn, BenchNnArgs};
+pub use detect::{format_latency, run_detect, DetectArgs};
+pub use train::{run_train, train_with_progress, TrainArgs};
+
+/// The CPU preset, built in (the same text as `configs/pointpillars_cpu.toml`).
+pub const CPU_PRESET: &str = include_str!("../../../../configs/pointpillars_cpu.toml");
+
+/// A progress-bar style from an indicatif template (the default style if the template is bad).
+pub fn progress_style(template: &str) -> ProgressStyle {
+    ProgressStyle::with_template(template).unwrap_or_else(|_| ProgressStyle::default_bar())
+}
+
+/// Errors when `dir` already holds a file an earlier run wrote (`is_output` on its name); a
+/// missing `dir` holds none.
+pub fn refuse_existing(dir: &Path, is_output: impl Fn(&str) -> bool) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(dir) else { return Ok(()) };
+    match entries.flatten().map(|e| e.path()).find(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(&is_output)) {
+        Some(p) => Err(NnError::Input(format!(
+            "{} already exists (an earlier run's output); pass --overwrite to replace it",
+            p.display()
+        ))),
+        None => Ok(()),
+    }
+}

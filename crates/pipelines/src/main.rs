@@ -1,0 +1,69 @@
+//! `pi3det-torch`: the detector commands of `pi3det` (`train`, `detect`, `demo`, `bench nn`), the
+//! part that links libtorch. `pi3det` hands these commands over with their arguments verbatim, so
+//! `pi3det train --help` is this binary's help; it can also be run directly.
+
+use clap::{Parser, Subcommand};
+use pi3det_nn::cli as nn;
+use pi3det_nn::NnError;
+
+#[derive(Parser)]
+#[command(
+    name = "pi3det-torch",
+    version,
+    about = "pi3det's detector commands (libtorch); usually run through `pi3det`"
+)]
+struct Cli {
+    /// Worker threads (default: all cores).
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Train a detector (PointPillars, anchor or center head) from a TOML config.
+    Train(nn::TrainArgs),
+    /// Run a trained detector over a dataset; write JSON lines and result.pkl, with latency.
+    Detect(nn::DetectArgs),
+    /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
+    Demo(pi3det_pipelines::demo::DemoArgs),
+    /// Benchmarks that print a table.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Our detector's training step and inference against PyTorch running the same network.
+    Nn(nn::BenchNnArgs),
+}
+
+fn main() -> std::process::ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .with_writer(std::io::stderr)
+        .without_time()
+        .init();
+    let cli = Cli::parse();
+    if let Some(n) = cli.threads {
+        // Ignored if rayon was already initialised, which cannot happen this early.
+        let _ = rayon::ThreadPoolBuilder::new().num_threads(n).build_global();
+    }
+    let result = match &cli.command {
+        Command::Train(args) => nn::run_train(args).map_err(anyhow::Error::from),
+        Command::Detect(args) => nn::run_detect(args).map_err(anyhow::Error::from),
+        Command::Demo(args) => pi3det_pipelines::demo::run_demo(args).map(|_| ()),
+        Command::Bench(BenchCommand::Nn(args)) => nn::run_bench_nn(args, &mut |n| {
+            pi3det_pipelines::frames::vehicle_frames(n).map_err(|e| NnError::Input(format!("simulation: {e}")))
+        })
+        .map_err(anyhow::Error::from),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

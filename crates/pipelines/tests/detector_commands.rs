@@ -1,0 +1,199 @@
+//! The detector commands end to end through `pi3det-torch` (what `pi3det train / detect / demo`
+//! run), at toy size: `demo` (simulate, train one epoch, evaluate per platform) and its `--reuse`
+//! rules, `--seeds` with the mean ± std table, then `detect` on the demo's checkpoint and the
+//! evaluator on the files detect wrote; earlier output kept unless `--overwrite`; and clear errors
+//! for a missing checkpoint. (`pi3det` handing these commands over is tested in crates/cli.)
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+fn torch(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pi3det-torch"))
+        .args(args)
+        .env("PI3DET_TORCH_THREADS", "1")
+        .output()
+        .expect("run pi3det-torch")
+}
+
+fn ok(out: &Output, what: &str) -> String {
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(out.status.success(), "{what} failed:\n{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    stdout
+}
+
+fn s(p: &Path) -> String {
+    p.to_str().unwrap().to_string()
+}
+
+/// A toy demo: one training and one validation sequence per platform of four frames, `epochs`
+/// epochs.
+fn demo(dir: &Path, epochs: &str, extra: &[&str]) -> (String, Value) {
+    let d = s(dir);
+    let base = [
+        "demo",
+        "--out",
+        &d,
+        "--train-sequences",
+        "1",
+        "--val-sequences",
+        "1",
+        "--target-train-sequences",
+        "1",
+        "--frames",
+        "4",
+        "--epochs",
+        epochs,
+        "--device",
+        "cpu",
+    ];
+    let out = ok(&torch(&[&base[..], extra].concat()), "demo");
+    let json = serde_json::from_slice(&std::fs::read(dir.join("demo.json")).unwrap()).unwrap();
+    (out, json)
+}
+
+fn reused(json: &Value) -> (bool, bool) {
+    let run = &json["seeds"][0];
+    (run["reused_data"].as_bool().unwrap(), run["reused_checkpoint"].as_bool().unwrap())
+}
+
+fn evaluate(gt: &Path, det: &Path) -> pi3det_eval::EvalReport {
+    let ds = pi3det_data::open(&gt.join("pi3det_infos_val.pkl")).unwrap();
+    let dets = pi3det_eval::Detections::read(det).unwrap();
+    pi3det_eval::evaluate_dataset(ds.as_ref(), &dets, &pi3det_eval::EvalOptions::default()).unwrap()
+}
+
+#[test]
+fn demo_then_detect_then_eval() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let (out, json) = demo(dir, "1", &["--seed", "3"]);
+    for platform in ["vehicle", "drone", "quadruped"] {
+        assert!(out.contains(&format!("| {platform} |")), "no {platform} row in\n{out}");
+        assert!(dir.join(format!("eval_{platform}.json")).is_file());
+    }
+    assert!(out.contains("simulate") && out.contains("train") && out.contains("evaluate"), "no timings in\n{out}");
+    assert_eq!(json["seeds"].as_array().map(Vec::len), Some(1));
+    assert_eq!(json["seeds"][0]["seed"], 3);
+    assert_eq!(json["seeds"][0]["rows"].as_array().map(Vec::len), Some(3));
+    assert_eq!(json["seeds"][0]["rows"][0]["frames"], 4, "one validation sequence of four frames");
+    assert_eq!(reused(&json), (false, false));
+    // The training seed is the demo's seed.
+    let ckpt = dir.join("pointpillars_vehicle/final.safetensors");
+    let cfg = std::fs::read_to_string(dir.join("pointpillars_vehicle/config.toml")).unwrap();
+    assert!(cfg.contains("seed = 3"), "{cfg}");
+
+    // --reuse takes what these settings made (the evaluation's frame limit is not one of them)…
+    let (_, json) = demo(dir, "1", &["--seed", "3", "--reuse", "--max-val-frames", "2"]);
+    assert_eq!(reused(&json), (true, true));
+    assert_eq!(json["seeds"][0]["rows"][0]["frames"], 2);
+    assert_eq!(json["seeds"][0]["timings"]["simulate_s"], 0.0);
+    // …but not a checkpoint of another schedule, nor data of another seed.
+    let (_, json) = demo(dir, "2", &["--seed", "3", "--reuse"]);
+    assert_eq!(reused(&json), (true, false));
+    let (_, json) = demo(dir, "2", &["--seed", "4", "--reuse"]);
+    assert_eq!(reused(&json), (false, false));
+    let cfg = std::fs::read_to_string(dir.join("pointpillars_vehicle/config.toml")).unwrap();
+    assert!(cfg.contains("seed = 4"), "{cfg}");
+
+    let val = dir.join("data/vehicle/val");
+    let det = dir.join("det");
+    let detect_args = ["detect", "--ckpt", &s(&ckpt), "--data", &s(&val), "--out", &s(&det), "--device", "cpu"];
+    let out = ok(&torch(&detect_args), "detect");
+    assert!(out.contains("latency per frame"), "{out}");
+    for f in ["detections.jsonl", "result.pkl", "latency.json"] {
+        assert!(det.join(f).is_file(), "detect did not write {f}");
+    }
+    // A second run into the same folder replaces nothing unless asked; nor does training into a
+    // folder that holds a model.
+    let again = torch(&detect_args);
+    assert!(!again.status.success(), "detect replaced an earlier run's output");
+    assert!(String::from_utf8_lossy(&again.stderr).contains("--overwrite"));
+    ok(&torch(&[&detect_args[..], &["--overwrite"]].concat()), "detect --overwrite");
+    let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/pointpillars_cpu.toml");
+    let ckpt_dir = ckpt.parent().unwrap();
+    let train =
+        torch(&["train", "--config", &s(&config), "--data", &s(&val), "--out", &s(ckpt_dir), "--device", "cpu"]);
+    assert!(!train.status.success(), "train replaced an earlier run's model");
+    let err = String::from_utf8_lossy(&train.stderr);
+    assert!(err.contains(".safetensors") && err.contains("--overwrite"), "{err}");
+    assert!(ckpt.is_file());
+    // train reads the config's frame limits; --max-frames / --max-val-frames override them.
+    let text = std::fs::read_to_string(&config).unwrap();
+    let limited = dir.join("limited.toml");
+    std::fs::write(&limited, text.replace("[train]\n", "[train]\nmax_train_frames = 3\nmax_eval_frames = 1\n"))
+        .unwrap();
+    let (limited, train_dir, val_s) = (s(&limited), s(&dir.join("data/vehicle/train")), s(&val));
+    let args =
+        ["train", "--config", &limited, "--data", &train_dir, "--val", &val_s, "--epochs", "1", "--device", "cpu"];
+    let pp = s(&dir.join("pp"));
+    let pp2 = s(&dir.join("pp2"));
+    let out = torch(&[&args[..], &["--out", &pp]].concat());
+    ok(&out, "train");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("3 training frames, 1 validation frames"), "{err}");
+    let out = torch(&[&args[..], &["--out", &pp2, "--max-frames", "2", "--max-val-frames", "2"]].concat());
+    ok(&out, "train --max-frames");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("2 training frames, 2 validation frames"), "{err}");
+    let saved = std::fs::read_to_string(dir.join("pp2/config.toml")).unwrap();
+    assert!(saved.contains("max_train_frames = 2") && saved.contains("max_eval_frames = 2"), "{saved}");
+    // Both files detect wrote read back to the same evaluation.
+    let a = evaluate(&val, &det.join("result.pkl"));
+    let b = evaluate(&val, &det.join("detections.jsonl"));
+    assert_eq!(a.overall.num_frames, 4);
+    assert_eq!(serde_json::to_value(&a.overall).unwrap(), serde_json::to_value(&b.overall).unwrap());
+}
+
+#[test]
+fn demo_over_seeds_prints_mean_and_std() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let (out, json) = demo(dir, "1", &["--seeds", "0,1", "--max-val-frames", "2"]);
+    assert!(out.contains("mean ± sample std"), "{out}");
+    assert!(out.contains("| 1 | quadruped | 2 |"), "no per-seed row in\n{out}");
+    assert!(out.contains(" ± "), "{out}");
+    let seeds: Vec<u64> = json["seeds"].as_array().unwrap().iter().map(|r| r["seed"].as_u64().unwrap()).collect();
+    assert_eq!(seeds, vec![0, 1]);
+    for seed in [0, 1] {
+        assert!(dir.join(format!("seed_{seed}/pointpillars_vehicle/final.safetensors")).is_file());
+        assert!(dir.join(format!("seed_{seed}/eval_drone.json")).is_file());
+    }
+    let summary = json["summary"].as_array().unwrap();
+    assert_eq!(summary.len(), 3);
+    let car = &summary[0]["classes"][0];
+    assert_eq!((summary[0]["platform"].as_str(), car["class"].as_str()), (Some("vehicle"), Some("Car")));
+    let bev = &car["bev"];
+    if !bev.is_null() {
+        let v: Vec<f64> = bev["values"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        assert!((bev["mean"].as_f64().unwrap() - mean).abs() < 1e-9);
+        if v.len() == 2 {
+            let std = (v[0] - v[1]).abs() / 2f64.sqrt();
+            assert!((bev["std"].as_f64().unwrap() - std).abs() < 1e-9);
+        }
+    }
+    assert!(json["timings"]["total_s"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn missing_checkpoint_is_a_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let missing = tmp.path().join("nope.safetensors");
+    let out = torch(&[
+        "detect",
+        "--ckpt",
+        missing.to_str().unwrap(),
+        "--data",
+        tmp.path().to_str().unwrap(),
+        "--out",
+        tmp.path().join("o").to_str().unwrap(),
+        "--device",
+        "cpu",
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("nope.safetensors"), "error does not name the file: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
