@@ -4,7 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use pi3det_eval::{Breakdown, Detections, EvalOptions, EvalReport};
+pub use pi3det_eval::{format_breakdown, Breakdown};
+use pi3det_eval::{Detections, EvalOptions, EvalReport};
 
 use crate::detect::FrameDetections;
 use crate::error::{NnError, Result};

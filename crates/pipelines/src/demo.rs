@@ -361,6 +361,16 @@ fn run_seed(
         let (report, summary) = eval::evaluate(&frames, &opts)?;
         let json = serde_json::to_vec_pretty(&report)?;
         pi3det_data::io::write_atomic(&dir.join(format!("eval_{}.json", p.as_str())), &json, true)?;
+        // AP and recall by distance and points per box, misplaced share, localisation errors.
+        let b = eval::breakdown(&frames, &opts)?;
+        pi3det_data::io::write_atomic(
+            &dir.join(format!("breakdown_{}.json", p.as_str())),
+            &serde_json::to_vec_pretty(&b)?,
+            true,
+        )?;
+        if p == Platform::Vehicle {
+            eprint!("{}", eval::format_breakdown(&b));
+        }
         rows.push(DemoRow { platform: p.as_str().into(), frames: frames.len(), summary, latency });
     }
     timings.evaluate_s = t.elapsed().as_secs_f64();

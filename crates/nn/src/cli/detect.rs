@@ -32,10 +32,14 @@ pub struct DetectArgs {
     /// Override the checkpoint's NMS IoU threshold.
     #[arg(long)]
     pub nms_iou: Option<f64>,
+    /// Override the checkpoint's NMS mode: per class (true) or over all classes at once (false).
+    #[arg(long, value_name = "BOOL")]
+    pub per_class_nms: Option<bool>,
     /// Override the z shift applied to the points (e.g. to move a drone's ground to z ≈ 0).
     #[arg(long, allow_negative_numbers = true)]
     pub shift_z: Option<f64>,
-    /// Also evaluate against the data's ground truth (within the detector's range) and print it.
+    /// Also evaluate against the data's ground truth (within the detector's range) and print it
+    /// with the error breakdown (eval.json, breakdown.json).
     #[arg(long)]
     pub eval: bool,
     /// Replace detections an earlier run left in OUT.
@@ -59,6 +63,9 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     }
     if let Some(z) = args.shift_z {
         ck.config.shift_z = z;
+    }
+    if let Some(b) = args.per_class_nms {
+        ck.config.post.per_class_nms = b;
     }
     let mut det = crate::Detector::new(&ck.config, device)?;
     ck.load_into(&mut det, &args.ckpt)?;
@@ -85,6 +92,13 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
         let json = serde_json::to_vec_pretty(&report).unwrap_or_default();
         pi3det_data::io::write_atomic(&args.out.join("eval.json"), &json, true)?;
         print!("{}", pi3det_eval::format_report(&report));
+        let b = eval::breakdown(&frames, &opts)?;
+        pi3det_data::io::write_atomic(
+            &args.out.join("breakdown.json"),
+            &serde_json::to_vec_pretty(&b).unwrap_or_default(),
+            true,
+        )?;
+        print!("{}", pi3det_eval::format_breakdown(&b));
     }
     Ok(())
 }
