@@ -34,7 +34,7 @@ pub const PLATFORMS: [Platform; 3] = [Platform::Vehicle, Platform::Drone, Platfo
 #[derive(clap::Args, Debug, Clone)]
 pub struct DemoArgs {
     /// Working folder: the demo (re)writes its data/, pointpillars_vehicle/ and reports there
-    /// (with --seeds, one seed_<S>/ folder per seed).
+    /// (with --seeds, one seed_S/ folder per seed S).
     #[arg(long, default_value = "runs/demo")]
     pub out: PathBuf,
     /// Detector config [default: the built-in CPU preset, configs/pointpillars_cpu.toml].
@@ -65,7 +65,7 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 0, conflicts_with = "seeds")]
     pub seed: u64,
     /// Several seeds, comma-separated (instead of --seed): simulate, train and evaluate once per
-    /// seed (in OUT/seed_<S>/), then print the per-seed table and the mean ± std.
+    /// seed (in OUT/seed_S/), then print the per-seed table and the mean ± std.
     #[arg(long, value_delimiter = ',', value_name = "S,S,...")]
     pub seeds: Vec<u64>,
     /// Reuse data and checkpoint already in the working folder (only if made with these settings).
@@ -112,7 +112,7 @@ impl Timings {
 #[derive(Debug, Clone, Serialize)]
 pub struct SeedRun {
     pub seed: u64,
-    /// Its working folder (data/, pointpillars_vehicle/, eval_<platform>.json).
+    /// Its working folder (data/, pointpillars_vehicle/, `eval_<platform>.json`).
     pub dir: PathBuf,
     pub reused_data: bool,
     pub reused_checkpoint: bool,
