@@ -33,7 +33,8 @@ fn presets_build_and_run() {
     let paper = Detector::new(&preset("pointpillars_paper.toml"), Device::Cpu).unwrap();
     let HeadConfig::Anchor(head) = &paper.cfg().head else { panic!("the paper preset has an anchor head") };
     let anchors = head.assigner(&paper.prep.map).anchors;
-    assert_eq!((anchors.h, anchors.w, anchors.per_location), (472, 472, 4));
+    // Two Car sizes (sedan/van, bus) and one Pedestrian size, each at 0° and 90°.
+    assert_eq!((anchors.h, anchors.w, anchors.per_location), (472, 472, 6));
     assert!(paper.num_parameters() > 4_000_000, "OpenPCDet's PointPillars has 4.8 M parameters");
     for name in ["pointpillars_cpu.toml", "centerpoint_cpu.toml"] {
         let cfg = preset(name);

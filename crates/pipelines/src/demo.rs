@@ -18,7 +18,7 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use indicatif::ProgressBar;
 use pi3det_data::Platform;
-use pi3det_nn::cli::{open_subset, progress_style, train_with_progress, DeviceArgs, CPU_PRESET};
+use pi3det_nn::cli::{open_subset, progress_style, train_with_progress, DeviceArgs, RCNN_CPU_PRESET};
 use pi3det_nn::detect::{self, Latency};
 use pi3det_nn::eval::{self, ApSummary};
 use pi3det_nn::train::TrainOptions;
@@ -37,11 +37,13 @@ pub struct DemoArgs {
     /// (with --seeds, one seed_S/ folder per seed S).
     #[arg(long, default_value = "runs/demo")]
     pub out: PathBuf,
-    /// Detector config [default: the built-in CPU preset, configs/pointpillars_cpu.toml].
+    /// Detector config [default: the built-in two-stage CPU preset, configs/pointpillars_rcnn_cpu.toml].
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Vehicle training sequences.
-    #[arg(long, default_value_t = 12, value_name = "N")]
+    /// Vehicle training sequences. Many short ones beat few long ones at the same number of steps:
+    /// 40 × 30 frames for 3 epochs gave Car BEV@0.7 57.9 where 12 × 30 for 10 epochs gave 56.3
+    /// (two-stage; single-stage 57.2 against 43.5).
+    #[arg(long, default_value_t = 40, value_name = "N")]
     pub train_sequences: u32,
     /// Validation sequences per platform (vehicle, drone, quadruped).
     #[arg(long, default_value_t = 12, value_name = "N")]
@@ -57,9 +59,9 @@ pub struct DemoArgs {
     /// `train.max_eval_frames`].
     #[arg(long, value_name = "N")]
     pub max_val_frames: Option<usize>,
-    /// Training epochs: 10 take about eleven minutes on two cores; the config's own schedule
-    /// (`train.epochs`) is used with `--epochs 0`.
-    #[arg(long, default_value_t = 10)]
+    /// Training epochs over the vehicle training frames (3 × 1,200 frames = 3,600 steps at batch
+    /// 1); the config's own schedule (`train.epochs`) is used with `--epochs 0`.
+    #[arg(long, default_value_t = 3)]
     pub epochs: usize,
     /// Seed of the simulation and of training (the config's `train.seed`).
     #[arg(long, default_value_t = 0, conflicts_with = "seeds")]
@@ -224,7 +226,7 @@ pub fn run_demo(args: &DemoArgs) -> Result<DemoReport> {
     args.check()?;
     let mut cfg = match &args.config {
         Some(p) => DetectorConfig::from_file(p)?,
-        None => DetectorConfig::from_toml_str(CPU_PRESET)?,
+        None => DetectorConfig::from_toml_str(RCNN_CPU_PRESET)?,
     };
     if args.epochs > 0 {
         cfg.train.epochs = args.epochs;
@@ -501,13 +503,13 @@ mod tests {
     #[test]
     fn defaults_split_and_seeds() {
         let a = parse(&[]).unwrap();
-        assert_eq!((a.train_sequences, a.val_sequences, a.frames, a.target_train_sequences), (12, 12, 30, 2));
-        assert_eq!(a.seed_list(), vec![0]);
+        assert_eq!((a.train_sequences, a.val_sequences, a.frames, a.target_train_sequences), (40, 12, 30, 2));
+        assert_eq!((a.seed_list(), a.epochs), (vec![0], 3));
         let plans = a.plans();
         assert_eq!(plans[0].platform, Platform::Vehicle);
-        assert_eq!((plans[0].sequences, plans[0].val_sequences), (24, 12));
+        assert_eq!((plans[0].sequences, plans[0].val_sequences), (52, 12));
         assert_eq!((plans[1].sequences, plans[1].val_sequences), (14, 12));
-        assert_eq!((0..24).filter(|&i| plans[0].split_of(i) == "val").count(), 12);
+        assert_eq!((0..52).filter(|&i| plans[0].split_of(i) == "val").count(), 12);
         let a = parse(&["--seeds", "0,1,2"]).unwrap();
         assert_eq!(a.seed_list(), vec![0, 1, 2]);
         assert!(parse(&["--seeds", "1", "--seed", "2"]).is_err(), "--seed and --seeds conflict");

@@ -29,6 +29,9 @@ pub use train::{run_train, train_with_progress, TrainArgs};
 /// The CPU preset, built in (the same text as `configs/pointpillars_cpu.toml`).
 pub const CPU_PRESET: &str = include_str!("../../../../configs/pointpillars_cpu.toml");
 
+/// The CPU preset with the second stage (`configs/pointpillars_rcnn_cpu.toml`): the demo's detector.
+pub const RCNN_CPU_PRESET: &str = include_str!("../../../../configs/pointpillars_rcnn_cpu.toml");
+
 /// A progress-bar style from an indicatif template (the default style if the template is bad).
 pub fn progress_style(template: &str) -> ProgressStyle {
     ProgressStyle::with_template(template).unwrap_or_else(|_| ProgressStyle::default_bar())
