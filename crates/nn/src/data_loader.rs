@@ -14,8 +14,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use crate::augment::{Augment, Sample};
-use crate::config::DetectorConfig;
+use crate::augment::Augment;
 use crate::dense_heads::{BatchTargets, FrameTargets};
 use crate::error::{NnError, Result};
 use crate::pillarize::Pillars;
@@ -79,18 +78,6 @@ pub fn open_split(path: &Path, split: Option<&str>) -> Result<Arc<dyn Dataset>> 
         }
     }
     Ok(Arc::from(pi3det_data::open(path)?))
-}
-
-/// A frame in the detector's frame with its detectable boxes, as the config's own transform
-/// (`shift_z`) puts it: see [`Preprocessor::sample`] for a detector with another transform.
-pub fn frame_to_sample(frame: &Frame, cfg: &DetectorConfig, min_points: usize) -> Sample {
-    let t = crate::preprocess::ShiftZ(cfg.shift_z);
-    crate::preprocess::frame_to_sample(
-        frame,
-        cfg,
-        &crate::preprocess::FrameTransform::detector_from_lidar(&t, frame),
-        min_points,
-    )
 }
 
 /// Per-frame RNG seed from the run seed, epoch and frame index (splitmix64).

@@ -101,12 +101,15 @@ pub struct TrainReport {
 }
 
 /// Builds the augmentation pipeline (and the ground-truth database when it is used).
-pub fn build_augments(cfg: &DetectorConfig, train: &Subset) -> Result<(Vec<Box<dyn Augment>>, usize)> {
+/// The database is built in the frame `prep` puts frames in (its per-frame transform), so pasted
+/// objects share the detector's frame.
+pub fn build_augments(prep: &Preprocessor, train: &Subset) -> Result<(Vec<Box<dyn Augment>>, usize)> {
+    let cfg = &prep.cfg;
     let db = match cfg.train.augment.iter().find_map(|a| match a {
         AugmentConfig::GtSampling(c) => Some(c),
         _ => None,
     }) {
-        Some(c) => Some(Arc::new(build_database(cfg, train, c)?)),
+        Some(c) => Some(Arc::new(build_database(prep, train, c)?)),
         None => None,
     };
     let n = db.as_ref().map_or(0, |d| d.len());
@@ -115,8 +118,8 @@ pub fn build_augments(cfg: &DetectorConfig, train: &Subset) -> Result<(Vec<Box<d
 }
 
 /// The ground-truth database of a training subset (frames read in parallel).
-pub fn build_database(cfg: &DetectorConfig, train: &Subset, gs: &GtSamplingConfig) -> Result<GtDatabase> {
-    let prep = Preprocessor::new(cfg)?;
+pub fn build_database(prep: &Preprocessor, train: &Subset, gs: &GtSamplingConfig) -> Result<GtDatabase> {
+    let cfg = &prep.cfg;
     let parts: Vec<GtDatabase> = train
         .indices
         .par_iter()
@@ -173,7 +176,7 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
         optim.load_state(&ck.tensors, ck.state.step)?;
         state = ck.state;
     }
-    let (augments, db_len) = build_augments(cfg, &opts.train)?;
+    let (augments, db_len) = build_augments(&det.prep, &opts.train)?;
     let augments = Arc::new(augments);
     let bs = cfg.train.batch_size;
     // The loader drops a last partial batch (unless it is the only one).
@@ -191,6 +194,7 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
         final_eval: None,
     };
     let mut saved: Vec<PathBuf> = Vec::new();
+    let mut scales_checked = false;
     for epoch in state.epoch..cfg.train.epochs {
         let t_epoch = Instant::now();
         let loader = Loader::new(
@@ -234,7 +238,9 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
             ));
             let out = det.forward_train(&x, &batch.gt, &mut rng)?;
             let losses = det.loss(&out, &t)?;
-            if optim.step == 0 {
+            // Once per run (also when resuming): a scale naming no term is a typo.
+            if !scales_checked {
+                scales_checked = true;
                 let unused = losses.unused_scales();
                 if !unused.is_empty() {
                     let names: Vec<&str> = losses.terms().iter().map(|(n, _)| *n).collect();

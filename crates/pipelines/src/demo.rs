@@ -40,9 +40,9 @@ pub struct DemoArgs {
     /// Detector config [default: the built-in two-stage CPU preset, configs/pointpillars_rcnn_cpu.toml].
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Vehicle training sequences. Many short ones beat few long ones at the same number of steps:
-    /// 40 × 30 frames for 3 epochs gave Car BEV@0.7 57.9 where 12 × 30 for 10 epochs gave 56.3
-    /// (two-stage; single-stage 57.2 against 43.5).
+    /// Vehicle training sequences. More distinct frames at the same number of steps: in one run
+    /// each, 40 × 30 frames for 3 epochs gave Car BEV@0.7 57.9 where 12 × 30 for 10 epochs gave
+    /// 56.3 (two-stage; single-stage 57.2 against 43.5) — see README.
     #[arg(long, default_value_t = 40, value_name = "N")]
     pub train_sequences: u32,
     /// Validation sequences per platform (vehicle, drone, quadruped).

@@ -60,7 +60,8 @@ pub fn run_bench_nn(args: &BenchNnArgs, default_frames: &mut dyn FnMut(usize) ->
         }
         None => default_frames(n)?,
     };
-    let samples = frames.iter().map(|f| crate::data_loader::frame_to_sample(f, &cfg, 1)).collect();
+    let prep = crate::preprocess::Preprocessor::new(&cfg)?;
+    let samples = frames.iter().map(|f| prep.sample(f, 1)).collect();
     let python = if args.no_torch {
         None
     } else {
