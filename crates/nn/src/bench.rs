@@ -118,7 +118,11 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
     let (xd, td) = (x.to_device(opts.device), t.to_device(opts.device));
     let gt: Vec<crate::data_loader::FrameGt> = batch
         .iter()
-        .map(|s| crate::data_loader::FrameGt { boxes: s.boxes.clone(), classes: s.classes.clone() })
+        .map(|s| crate::data_loader::FrameGt {
+            boxes: s.boxes.clone(),
+            classes: s.classes.clone(),
+            ..Default::default()
+        })
         .collect();
     let mut optim = Optimizer::new(det.named_trainables(), &cfg.train);
     let sync = || {
@@ -133,7 +137,7 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
         let out = det.forward_train(&xd, &gt, &mut rand::SeedableRng::seed_from_u64(i as u64))?;
         sync();
         let t1 = Instant::now();
-        let l = det.loss(&out, &td)?;
+        let l = det.loss(&out, &td, &gt, crate::detector::Domain::Source)?;
         sync();
         let t2 = Instant::now();
         optim.zero_grad();

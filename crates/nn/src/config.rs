@@ -174,6 +174,8 @@ pub struct DetectorConfig {
     pub head: HeadConfig,
     /// Optional second stage refining the dense head's boxes from RoI features.
     pub roi_head: Option<crate::roi_heads::RoiHeadConfig>,
+    /// Pi3DET-Net's KL Probabilistic Feature Alignment on the second stage's RoI features.
+    pub pfa: Option<crate::adapt::PfaConfig>,
     /// Scales applied to named loss terms on top of each stage's own weights (e.g. `loc = 1.5`).
     pub loss_weights: BTreeMap<String, f64>,
     pub post: PostConfig,
@@ -195,6 +197,7 @@ impl Default for DetectorConfig {
             neck: None,
             head: HeadConfig::default(),
             roi_head: None,
+            pfa: None,
             loss_weights: BTreeMap::new(),
             post: PostConfig::default(),
             train: TrainConfig::default(),
@@ -303,6 +306,15 @@ impl DetectorConfig {
         }
         if let Some(r) = &self.roi_head {
             r.validate()?;
+        }
+        if let Some(n) = &self.neck {
+            n.validate()?;
+        }
+        if let Some(p) = &self.pfa {
+            p.validate()?;
+            if self.roi_head.is_none() {
+                return Err(NnError::Config("pfa aligns RoI features: it needs a [roi_head]".into()));
+            }
         }
         if let Some((k, w)) = self.loss_weights.iter().find(|(_, w)| !(w.is_finite() && **w >= 0.0)) {
             return Err(NnError::Config(format!("loss_weights.{k} = {w}: must be finite and ≥ 0")));

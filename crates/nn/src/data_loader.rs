@@ -112,6 +112,9 @@ pub struct Batch {
 pub struct FrameGt {
     pub boxes: Vec<Box3d>,
     pub classes: Vec<usize>,
+    /// Roll and pitch (rad) Random Platform Jitter applied to the frame (the target of the GTD
+    /// rotation loss), when it did.
+    pub platform_jitter: Option<[f64; 2]>,
 }
 
 /// A frame prepared for the network.
@@ -172,7 +175,7 @@ pub fn prepare_frame(
             tracing::debug!("{}: {} points dropped by the pillar limits", frame.info.id, pillars.dropped_points);
         }
         let targets = Some(prep.targets(&s));
-        let gt = FrameGt { boxes: s.boxes, classes: s.classes };
+        let gt = FrameGt { boxes: s.boxes, classes: s.classes, platform_jitter: s.platform_jitter };
         Ok(PreparedFrame { pillars, targets, detector_from_lidar: s.detector_from_lidar, gt })
     } else {
         let pillars = pillarizer.run(&s.points, cfg.pillars.max_pillars_test);

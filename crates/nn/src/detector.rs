@@ -17,13 +17,15 @@ use rand_chacha::ChaCha8Rng;
 use tch::nn::VarStore;
 use tch::{Device, Tensor};
 
+use crate::adapt::pfa::{Latent, Pfa};
 use crate::backbone_2d::Backbone2d;
 use crate::config::DetectorConfig;
 use crate::data_loader::FrameGt;
 use crate::dense_heads::{AnyDenseHead, BatchTargets, DenseOutput};
 use crate::error::{NnError, Result};
 use crate::losses::LossTerms;
-use crate::necks::Neck;
+use crate::necks::gtd::rotation_loss;
+use crate::necks::{Neck, NeckOutput};
 pub use crate::post_process::Detection;
 use crate::post_process::{nms_detections, to_detections};
 pub use crate::preprocess::{Inputs, Preprocessor};
@@ -39,6 +41,16 @@ pub struct Forward {
     pub dense: DenseOutput,
     /// The second stage, when the detector has one.
     pub roi: Option<RoiStage>,
+    /// `[B, 2]` the neck's predicted (roll, pitch) in degrees (GTD).
+    pub rotation_deg: Option<Tensor>,
+}
+
+/// Which domain a training batch comes from: source-only losses (the GTD rotation loss, PFA's
+/// RoI classification) are not computed on target batches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Domain {
+    Source,
+    Target,
 }
 
 /// The second stage's part of a forward pass.
@@ -60,6 +72,7 @@ pub struct Detector {
     neck: Option<Box<dyn Neck>>,
     dense_head: Box<dyn AnyDenseHead>,
     roi_head: Option<Box<dyn SecondStage>>,
+    pfa: Option<Pfa>,
 }
 
 impl Detector {
@@ -86,7 +99,12 @@ impl Detector {
             Some(r) => Some(Box::new(r.init(&root / "roi_head", c, bn)?) as Box<dyn SecondStage>),
             None => None,
         };
-        Ok(Self { vs, prep, vfe, backbone_2d, neck, dense_head, roi_head })
+        let pfa = match (&cfg.pfa, &roi_head) {
+            (Some(p), Some(r)) => Some(p.init(&root / "pfa", r.feature_channels())),
+            (Some(_), None) => return Err(NnError::Config("pfa needs a second stage (roi_head)".into())),
+            (None, _) => None,
+        };
+        Ok(Self { vs, prep, vfe, backbone_2d, neck, dense_head, roi_head, pfa })
     }
 
     pub fn cfg(&self) -> &DetectorConfig {
@@ -109,8 +127,9 @@ impl Detector {
         self.vs.variables().into_iter().filter(|(_, t)| ptrs.contains(&(t.data_ptr() as usize))).collect()
     }
 
-    /// `vfe → map_to_bev → backbone_2d → [neck]`: BEV features `[B, C, H, W]` of a batch.
-    pub fn bev_features(&self, x: &Inputs, train: bool) -> Tensor {
+    /// `vfe → map_to_bev → backbone_2d → [neck]`: BEV features `[B, C, H, W]` of a batch, with
+    /// the neck's rotation prediction when it makes one.
+    pub fn bev_features(&self, x: &Inputs, train: bool) -> NeckOutput {
         let pillar = self.vfe.forward_t(&x.features, train);
         let channels_last = self.cfg().channels_last && self.device() == Device::Cpu;
         let bev =
@@ -118,7 +137,7 @@ impl Detector {
         let bev = self.backbone_2d.forward_t(&bev, train);
         match &self.neck {
             Some(n) => n.forward_t(&bev, train),
-            None => bev,
+            None => NeckOutput { bev, rotation_deg: None },
         }
     }
 
@@ -129,7 +148,7 @@ impl Detector {
     /// The chain on a batch for inference (eval-mode when `train` is false). With a second
     /// stage, the RoIs are the dense head's proposals (test limits).
     pub fn forward_t(&self, x: &Inputs, train: bool) -> Result<Forward> {
-        let bev = self.bev_features(x, train);
+        let NeckOutput { bev, rotation_deg } = self.bev_features(x, train);
         let dense = self.dense_head.forward_t(&bev, train);
         let roi = match &self.roi_head {
             Some(stage) => {
@@ -140,13 +159,13 @@ impl Detector {
             }
             None => None,
         };
-        Ok(Forward { bev, dense, roi })
+        Ok(Forward { bev, dense, roi, rotation_deg })
     }
 
     /// The chain on a training batch: with a second stage, RoIs are sampled from the dense head's
     /// proposals (train limits) against `gt` (one entry per frame, detector frame).
     pub fn forward_train(&self, x: &Inputs, gt: &[FrameGt], rng: &mut ChaCha8Rng) -> Result<Forward> {
-        let bev = self.bev_features(x, true);
+        let NeckOutput { bev, rotation_deg } = self.bev_features(x, true);
         let dense = self.dense_head.forward_t(&bev, true);
         let roi = match &self.roi_head {
             Some(stage) => {
@@ -164,7 +183,7 @@ impl Detector {
             }
             None => None,
         };
-        Ok(Forward { bev, dense, roi })
+        Ok(Forward { bev, dense, roi, rotation_deg })
     }
 
     /// Proposals of each frame from the dense head's candidates (gradients do not flow into
@@ -181,8 +200,10 @@ impl Detector {
             .collect()
     }
 
-    /// The named loss terms of a forward pass against the batch's targets.
-    pub fn loss(&self, out: &Forward, targets: &BatchTargets) -> Result<LossTerms> {
+    /// The named loss terms of a forward pass against the batch's targets: the dense head's and
+    /// the second stage's, and on source batches GTD's `rot` (frames with platform jitter in
+    /// `gt`) and PFA's `pfa_roi`.
+    pub fn loss(&self, out: &Forward, targets: &BatchTargets, gt: &[FrameGt], domain: Domain) -> Result<LossTerms> {
         let mut losses = LossTerms::new(&self.cfg().loss_weights);
         self.dense_head.loss(&out.dense, targets, &mut losses)?;
         if let (Some(stage), Some(roi)) = (&self.roi_head, &out.roi) {
@@ -191,7 +212,37 @@ impl Detector {
             })?;
             stage.loss(&roi.out, t, &mut losses)?;
         }
+        if domain == Domain::Target {
+            return Ok(losses);
+        }
+        if let (Some(neck), Some(pred)) = (&self.neck, &out.rotation_deg) {
+            let jitter: Vec<Option<[f64; 2]>> = gt.iter().map(|g| g.platform_jitter).collect();
+            if let Some(l) = rotation_loss(pred, &jitter) {
+                losses.add("rot", l * neck.rotation_weight());
+            }
+        }
+        if let (Some(pfa), Some(z)) = (&self.pfa, self.latent(out)) {
+            if let Some(l) = pfa.roi_loss(&z?) {
+                losses.add("pfa_roi", l * self.cfg().pfa.as_ref().map_or(0.0, |c| c.roi_weight));
+            }
+        }
         Ok(losses)
+    }
+
+    /// PFA's latent Gaussians of a training pass's sampled RoIs (foreground: regressed RoIs);
+    /// `None` without PFA or a second stage.
+    pub fn latent(&self, out: &Forward) -> Option<Result<Latent>> {
+        let (pfa, roi) = (self.pfa.as_ref()?, out.roi.as_ref()?);
+        Some(match &roi.targets {
+            Some(t) => Ok(pfa.encode(&roi.out.features, &t.roi_labels.ge(0), &t.reg_valid.gt(0.5))),
+            None => Err(NnError::Input("PFA needs a forward_train pass (sampled RoIs)".into())),
+        })
+    }
+
+    /// λ_KL times PFA's `L_KL` between a source and a target batch's latents.
+    pub fn kl_loss(&self, source: &Latent, target: &Latent) -> Option<Tensor> {
+        let w = self.cfg().pfa.as_ref()?.kl_weight;
+        Some(crate::adapt::pfa::kl_loss(source, target)? * w)
     }
 
     /// Final detections per frame in the detector's frame: the refined RoIs (second stage) or

@@ -25,6 +25,7 @@
 //! (`--device auto`), else the CPU; on the CPU the BEV network runs channels-last (oneDNN) and
 //! libtorch uses every core unless told otherwise ([`device::default_threads`]).
 
+pub mod adapt;
 pub mod augment;
 pub mod backbone_2d;
 pub mod bench;

@@ -23,7 +23,7 @@ use crate::checkpoint::{self, TrainState};
 use crate::config::DetectorConfig;
 use crate::data_loader::{Loader, LoaderOptions, Subset};
 use crate::detect;
-use crate::detector::Detector;
+use crate::detector::{Detector, Domain};
 use crate::error::{NnError, Result};
 use crate::eval::{self, ApSummary};
 use crate::optim::{OneCycle, Optimizer};
@@ -237,7 +237,7 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
                 optim.step as u64 ^ 0x5eed,
             ));
             let out = det.forward_train(&x, &batch.gt, &mut rng)?;
-            let losses = det.loss(&out, &t)?;
+            let losses = det.loss(&out, &t, &batch.gt, Domain::Source)?;
             // Once per run (also when resuming): a scale naming no term is a typo.
             if !scales_checked {
                 scales_checked = true;

@@ -112,7 +112,7 @@ fn overfit_with(head: HeadConfig, roi: Option<RoiHeadConfig>, transform: Option<
     let pillars = prep.pillarizer().unwrap().run(&sample.points, cfg.pillars.max_pillars_train);
     let inputs = prep.collate_inputs(&[&pillars]);
     let targets = prep.collate_targets(&[&prep.targets(&sample)]).unwrap();
-    let gt = [FrameGt { boxes: sample.boxes.clone(), classes: sample.classes.clone() }];
+    let gt = [FrameGt { boxes: sample.boxes.clone(), classes: sample.classes.clone(), ..Default::default() }];
     let mut opt = Optimizer::new(det.named_trainables(), &cfg.train);
     let schedule = OneCycle::new(&cfg.train, steps);
     let mut rng = ChaCha8Rng::seed_from_u64(0);
@@ -121,7 +121,7 @@ fn overfit_with(head: HeadConfig, roi: Option<RoiHeadConfig>, transform: Option<
     for step in 0..steps {
         let (lr, beta1) = schedule.at(step);
         let out = det.forward_train(&inputs, &gt, &mut rng).unwrap();
-        let losses = det.loss(&out, &targets).unwrap();
+        let losses = det.loss(&out, &targets, &gt, pi3det_nn::detector::Domain::Source).unwrap();
         if cfg.roi_head.is_some() {
             assert!(losses.terms().iter().any(|(n, _)| *n == "rcnn_corner"), "the second stage adds its terms");
         }

@@ -45,6 +45,8 @@ use crate::target_assigner::CenterMap;
 /// [`RoiOutput::rois`]) for losses that align features across domains.
 pub trait SecondStage {
     fn proposal_config(&self) -> &ProposalConfig;
+    /// Width `F` of [`RoiOutput::features`].
+    fn feature_channels(&self) -> i64;
     /// Training RoIs and their targets from each frame's proposals and ground truth.
     fn sample(&self, proposals: &[Proposals], gt: &[FrameGt], rng: &mut ChaCha8Rng) -> Result<RoiBatchTargets>;
     /// `bev [B, C, H, W]`, `rois [B, N, 7]` → per-RoI features, score logits and box codes.
@@ -58,6 +60,10 @@ pub trait SecondStage {
 impl SecondStage for RoiHead {
     fn proposal_config(&self) -> &ProposalConfig {
         &self.cfg.proposal
+    }
+
+    fn feature_channels(&self) -> i64 {
+        self.feature_dim()
     }
 
     fn sample(&self, proposals: &[Proposals], gt: &[FrameGt], rng: &mut ChaCha8Rng) -> Result<RoiBatchTargets> {
