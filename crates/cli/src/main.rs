@@ -1,7 +1,7 @@
 //! `pi3det`: perspective-invariant LiDAR 3D object detection (Pi3DET) from the command line.
 //!
-//! This binary does not link libtorch: the detector commands (`train`, `detect`, `demo`,
-//! `bench nn`) are listed here but run in `pi3det-torch` (crates/pipelines), see [`cmd::torch`].
+//! This binary does not link libtorch: the detector commands (`train`, `detect`, `adapt`,
+//! `demo`, `bench nn`) are listed here but run in `pi3det-torch` (crates/pipelines), see [`cmd::torch`].
 
 mod cmd;
 
@@ -32,6 +32,8 @@ enum Command {
     Train(Forwarded),
     /// Run a trained detector over a dataset; write JSON lines and result.pkl, with latency.
     Detect(Forwarded),
+    /// Pi3DET-Net: adapt a source-trained detector to a target platform without target labels.
+    Adapt(Forwarded),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
     Demo(Forwarded),
     /// Benchmarks that print a table.
@@ -56,7 +58,11 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     if matches!(
         cli.command,
-        Command::Train(_) | Command::Detect(_) | Command::Demo(_) | Command::Bench(BenchCommand::Nn(_))
+        Command::Train(_)
+            | Command::Detect(_)
+            | Command::Adapt(_)
+            | Command::Demo(_)
+            | Command::Bench(BenchCommand::Nn(_))
     ) {
         return finish(cmd::torch::run(&args));
     }
@@ -75,7 +81,11 @@ fn main() -> std::process::ExitCode {
         Command::Eval(args) => pi3det_eval::cli::run(args).map_err(anyhow::Error::from),
         Command::Stats(args) => pi3det_analysis::cli::run(args).map_err(anyhow::Error::from),
         Command::Bench(BenchCommand::Sim(args)) => pi3det_sim::cli::run_bench(args).map_err(anyhow::Error::from),
-        Command::Train(_) | Command::Detect(_) | Command::Demo(_) | Command::Bench(BenchCommand::Nn(_)) => {
+        Command::Train(_)
+        | Command::Detect(_)
+        | Command::Adapt(_)
+        | Command::Demo(_)
+        | Command::Bench(BenchCommand::Nn(_)) => {
             unreachable!("handed to pi3det-torch above")
         }
     };

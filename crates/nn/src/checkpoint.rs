@@ -28,6 +28,9 @@ pub struct TrainState {
     pub train_seconds: f64,
     /// Last training loss (mean over the last epoch).
     pub last_loss: Option<f64>,
+    /// The adaptation stage the run is in (`pa`, `ka`); `None` for plain training.
+    #[serde(default)]
+    pub stage: Option<String>,
 }
 
 /// A loaded checkpoint.

@@ -17,6 +17,7 @@ use crate::augment::Augment;
 use crate::data_loader::{Loader, LoaderOptions, Subset};
 use crate::detector::{Detection, Detector};
 use crate::error::{NnError, Result};
+use crate::preprocess::Preprocessor;
 
 /// Detections of one frame, as dataset objects (boxes in the dataset's frame).
 #[derive(Debug, Clone, PartialEq)]
@@ -63,9 +64,21 @@ pub fn detect(
     batch_size: usize,
     on_batch: &mut dyn FnMut(usize, usize),
 ) -> Result<(Vec<FrameDetections>, Latency)> {
+    detect_with(det, det.prep.clone(), subset, batch_size, on_batch)
+}
+
+/// [`detect`] with frames prepared by `prep` (e.g. one with Virtual Platform Pose) instead of
+/// the detector's own preprocessor; detections go back through each frame's transform.
+pub fn detect_with(
+    det: &Detector,
+    prep: Arc<Preprocessor>,
+    subset: &Subset,
+    batch_size: usize,
+    on_batch: &mut dyn FnMut(usize, usize),
+) -> Result<(Vec<FrameDetections>, Latency)> {
     let opts =
         LoaderOptions { batch_size: batch_size.max(1), train: false, seed: 0, epoch: 0, prefetch: 2, drop_last: false };
-    let loader = Loader::new(det.prep.clone(), Arc::new(Vec::<Box<dyn Augment>>::new()), subset.clone(), opts);
+    let loader = Loader::new(prep, Arc::new(Vec::<Box<dyn Augment>>::new()), subset.clone(), opts);
     let total = subset.len();
     let mut out = Vec::with_capacity(total);
     let mut lat = Latency::default();

@@ -78,6 +78,11 @@ impl Preprocessor {
         self
     }
 
+    /// Placeholder until the ignored band lands (branch ignore-band).
+    pub fn with_ignore_score_below(self, _threshold: f64) -> Self {
+        self
+    }
+
     pub fn pillarizer(&self) -> Result<Pillarizer> {
         Pillarizer::new(&self.cfg.pillars)
     }

@@ -38,6 +38,8 @@ pub struct TrainOptions {
     pub device: Device,
     /// A checkpoint written by an earlier run of the same config to continue from.
     pub resume: Option<PathBuf>,
+    /// Recorded in the checkpoints (`pa` for Pi3DET-Net's Pre-Adaptation; `None`: plain training).
+    pub stage: Option<String>,
 }
 
 /// Progress of one step, for progress bars.
@@ -163,7 +165,7 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
     tch::manual_seed(cfg.train.seed as i64);
     let mut det = Detector::new(cfg, opts.device)?;
     let mut optim = Optimizer::new(det.named_trainables(), &cfg.train);
-    let mut state = TrainState::default();
+    let mut state = TrainState { stage: opts.stage.clone(), ..Default::default() };
     if let Some(path) = &opts.resume {
         let ck = checkpoint::load(path)?;
         if ck.config.to_toml() != cfg.to_toml() {

@@ -76,6 +76,7 @@ fn resume_reproduces_an_uninterrupted_run() {
             out_dir: out.to_path_buf(),
             device: Device::Cpu,
             resume: resume.map(Path::to_path_buf),
+            stage: None,
         };
         train(opts, &mut |_| {}).unwrap()
     };
@@ -108,6 +109,7 @@ fn resume_reproduces_an_uninterrupted_run() {
         out_dir: dir.path().join("c"),
         device: Device::Cpu,
         resume: Some(a.join("checkpoint_epoch_1.safetensors")),
+        stage: None,
     };
     assert!(train(opts, &mut |_| {}).is_err());
 

@@ -342,7 +342,15 @@ fn run_seed(
         let train = open_subset(&root(Platform::Vehicle, "train"), Some("train"), None, cfg.train.max_train_frames)?;
         eprintln!("training {} on {} vehicle frames (seed {seed})…", cfg.name, train.len());
         train_with_progress(
-            TrainOptions { config: cfg_train, train, val: None, out_dir: ckpt_dir.clone(), device, resume: None },
+            TrainOptions {
+                config: cfg_train,
+                train,
+                val: None,
+                out_dir: ckpt_dir.clone(),
+                device,
+                resume: None,
+                stage: None,
+            },
             false,
         )?;
         pi3det_data::io::write_atomic(&trained_marker, plan_text.as_bytes(), true)?;

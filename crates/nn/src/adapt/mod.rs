@@ -14,7 +14,10 @@
 //! `pi3det adapt --config configs/pi3det_net_cpu.toml --source DATA/vehicle/train --target
 //! DATA/drone/train --val DATA/drone/val --out runs/v2d` runs the stages ([`pipeline`]).
 
+pub mod ka;
 pub mod pfa;
+pub mod pipeline;
+pub mod pseudo_labels;
 pub mod vpp;
 
 pub use pfa::{Latent, Pfa, PfaConfig};

@@ -1,4 +1,4 @@
-//! `pi3det train`, `pi3det detect` and `pi3det bench nn`: argument structs (clap) and runners, one
+//! `pi3det train`, `pi3det detect`, `pi3det adapt` and `pi3det bench nn`: argument structs (clap) and runners, one
 //! file per command, for a binary to mount as subcommands (`pi3det-torch`, in
 //! `crates/pipelines`, which `pi3det` hands these commands to). The demo, which needs the
 //! simulator as well, lives in `pi3det-pipelines`.
@@ -7,6 +7,7 @@
 //! | --- | --- |
 //! | [`args`] | shared arguments: device and libtorch threads, a dataset and the part of it to use |
 //! | [`train`](mod@train) | `train`: [`TrainArgs`], [`run_train`], the progress bar ([`train_with_progress`]) |
+//! | [`adapt`](mod@adapt) | `adapt`: [`AdaptArgs`], [`run_adapt`] (Pi3DET-Net, progress bars per stage) |
 //! | [`detect`](mod@detect) | `detect`: [`DetectArgs`], [`run_detect`] |
 //! | [`bench`](mod@bench) | `bench nn`: [`BenchNnArgs`], [`run_bench_nn`] (frames from the caller by default) |
 
@@ -16,11 +17,13 @@ use indicatif::ProgressStyle;
 
 use crate::error::{NnError, Result};
 
+pub mod adapt;
 pub mod args;
 pub mod bench;
 pub mod detect;
 pub mod train;
 
+pub use adapt::{run_adapt, AdaptArgs};
 pub use args::{open_subset, DataArgs, DeviceArgs};
 pub use bench::{run_bench_nn, BenchNnArgs};
 pub use detect::{format_latency, run_detect, DetectArgs};
@@ -31,6 +34,9 @@ pub const CPU_PRESET: &str = include_str!("../../../../configs/pointpillars_cpu.
 
 /// The CPU preset with the second stage (`configs/pointpillars_rcnn_cpu.toml`): the demo's detector.
 pub const RCNN_CPU_PRESET: &str = include_str!("../../../../configs/pointpillars_rcnn_cpu.toml");
+
+/// Pi3DET-Net's CPU preset (`configs/pi3det_net_cpu.toml`): the demo's adaptation.
+pub const PI3DET_NET_CPU_PRESET: &str = include_str!("../../../../configs/pi3det_net_cpu.toml");
 
 /// A progress-bar style from an indicatif template (the default style if the template is bad).
 pub fn progress_style(template: &str) -> ProgressStyle {

@@ -149,7 +149,15 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         val.as_ref().map(|v| format!(", {} validation frames", v.len())).unwrap_or_default()
     );
     let report = train_with_progress(
-        TrainOptions { config: cfg, train, val, out_dir: args.out.clone(), device, resume: args.resume.clone() },
+        TrainOptions {
+            config: cfg,
+            train,
+            val,
+            out_dir: args.out.clone(),
+            device,
+            resume: args.resume.clone(),
+            stage: None,
+        },
         false,
     )?;
     println!("final checkpoint: {}", report.final_checkpoint.display());

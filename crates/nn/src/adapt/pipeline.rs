@@ -1,0 +1,572 @@
+//! `pi3det adapt`: Pre-Adaptation on the source → pseudo-labels on the target's unlabelled
+//! training frames → Knowledge-Adaptation, then the source-only (PA) model and the adapted one
+//! evaluated on the target's validation frames; `adapt.json` and `adapt.md` in the output folder.
+//!
+//! Layout of `--out`: `adapt_config.toml`; `pa/` (the training run of PA: checkpoints with stage
+//! `pa`, `final.safetensors`); `pseudo_labels.jsonl` (the labels KA starts from, detection format);
+//! `ka/` (epoch checkpoints with stage `ka` and optimiser moments, `labels_model.safetensors` —
+//! the weights the current pseudo-labels came from — and `final.safetensors`). A run started again
+//! with `resume` continues in the stage where it stopped: PA from its last epoch checkpoint, KA
+//! from its last epoch checkpoint with the pseudo-labels regenerated from `labels_model`, which
+//! reproduces the uninterrupted run.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+use tch::Device;
+
+use super::ka::{DomainData, KaConfig, KaStep, KnowledgeAdaptation};
+use super::pseudo_labels::{self, LabelQuality, PseudoLabelConfig, PseudoLabeled};
+use super::vpp::{median_sensor_height, VirtualPlatformPose, VppConfig, VppCounts};
+use crate::augment::{AugmentConfig, RandomPlatformJitterConfig};
+use crate::checkpoint::{self, TrainState};
+use crate::config::DetectorConfig;
+use crate::data_loader::Subset;
+use crate::detect::{self, FrameDetections};
+use crate::detector::Detector;
+use crate::error::{NnError, Result};
+use crate::eval::{self, ApSummary};
+use crate::necks::{GtdConfig, NeckConfig};
+use crate::preprocess::{FrameTransform, Preprocessor, ShiftZ};
+use crate::train::{self, build_augments, TrainOptions};
+
+/// A Pi3DET-Net run's settings (`configs/pi3det_net_cpu.toml`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AdaptConfig {
+    pub name: String,
+    /// The detector PA trains (RPJ among its augmentations, the GTD neck, PFA) and KA adapts.
+    pub detector: DetectorConfig,
+    /// Virtual Platform Pose for target frames (absent: off).
+    pub vpp: Option<VppConfig>,
+    pub pseudo_labels: PseudoLabelConfig,
+    pub ka: KaConfig,
+}
+
+impl Default for AdaptConfig {
+    fn default() -> Self {
+        let mut detector = DetectorConfig::default();
+        detector.train.augment.push(AugmentConfig::RandomPlatformJitter(RandomPlatformJitterConfig::default()));
+        detector.neck = Some(NeckConfig::Gtd(GtdConfig::default()));
+        detector.roi_head = Some(Default::default());
+        detector.pfa = Some(Default::default());
+        Self {
+            name: "pi3det_net".into(),
+            detector,
+            vpp: Some(VppConfig::default()),
+            pseudo_labels: PseudoLabelConfig::default(),
+            ka: KaConfig::default(),
+        }
+    }
+}
+
+/// The components `--without` can switch off.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Component {
+    Rpj,
+    Vpp,
+    Gtd,
+    Pfa,
+}
+
+impl std::str::FromStr for Component {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "rpj" => Ok(Self::Rpj),
+            "vpp" => Ok(Self::Vpp),
+            "gtd" => Ok(Self::Gtd),
+            "pfa" => Ok(Self::Pfa),
+            o => Err(format!("unknown component {o:?} (rpj, vpp, gtd, pfa)")),
+        }
+    }
+}
+
+impl AdaptConfig {
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let s = std::fs::read_to_string(path).map_err(|e| NnError::io(path, e))?;
+        let bad = |message: String| NnError::ConfigFile { path: path.to_path_buf(), message };
+        let cfg: Self = toml::from_str(&s).map_err(|e| bad(e.to_string()))?;
+        cfg.validate().map_err(|e| bad(e.to_string()))?;
+        Ok(cfg)
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).unwrap_or_default()
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        self.detector.validate()?;
+        if let Some(v) = &self.vpp {
+            v.validate()?;
+        }
+        self.pseudo_labels.validate()?;
+        self.ka.validate()
+    }
+
+    /// The components that are on.
+    pub fn components(&self) -> Vec<Component> {
+        let d = &self.detector;
+        let mut c = Vec::new();
+        if d.train.augment.iter().any(|a| matches!(a, AugmentConfig::RandomPlatformJitter(_))) {
+            c.push(Component::Rpj);
+        }
+        if self.vpp.is_some() {
+            c.push(Component::Vpp);
+        }
+        if matches!(d.neck, Some(NeckConfig::Gtd(_))) {
+            c.push(Component::Gtd);
+        }
+        if d.pfa.is_some() {
+            c.push(Component::Pfa);
+        }
+        c
+    }
+
+    /// The same run with `off` switched off (an ablation row).
+    pub fn without(&self, off: &[Component]) -> Self {
+        let mut c = self.clone();
+        for o in off {
+            match o {
+                Component::Rpj => {
+                    c.detector.train.augment.retain(|a| !matches!(a, AugmentConfig::RandomPlatformJitter(_)))
+                }
+                Component::Vpp => c.vpp = None,
+                Component::Gtd => c.detector.neck = None,
+                Component::Pfa => c.detector.pfa = None,
+            }
+        }
+        c
+    }
+
+    /// Target-frame augmentations in KA: the source's scene-level ones, without ground-truth
+    /// sampling (no target database) and without platform jitter (VPP levelled the frame).
+    fn target_detector_config(&self) -> DetectorConfig {
+        let mut d = self.detector.clone();
+        d.train.augment.retain(|a| !matches!(a, AugmentConfig::GtSampling(_) | AugmentConfig::RandomPlatformJitter(_)));
+        d
+    }
+}
+
+/// The stage a run stopped after (`stop_after`), for tests and for splitting work.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stage {
+    Pa,
+    Ka,
+}
+
+pub struct AdaptOptions {
+    pub config: AdaptConfig,
+    pub source: Subset,
+    /// The target's training frames (their labels, if any, are never used for training).
+    pub target: Subset,
+    pub val: Option<Subset>,
+    pub out_dir: PathBuf,
+    pub device: Device,
+    /// A finished PA checkpoint to start from instead of training one.
+    pub pa_ckpt: Option<PathBuf>,
+    /// Continue a run that stopped in `out_dir`.
+    pub resume: bool,
+    pub stop_after: Option<Stage>,
+}
+
+/// Progress events.
+pub enum AdaptEvent<'a> {
+    Stage(&'static str),
+    Message(String),
+    Pa(train::Event<'a>),
+    Labels { done: usize, total: usize },
+    KaStep(&'a KaStep),
+    KaEpoch { epoch: usize, mean_loss: f64, seconds: f64 },
+}
+
+/// Pseudo-label precision / recall of one way of making them.
+#[derive(Debug, Clone, Serialize)]
+pub struct QualityRow {
+    pub labels: String,
+    pub rows: Vec<LabelQuality>,
+}
+
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct AdaptReport {
+    pub name: String,
+    pub components: Vec<Component>,
+    pub source_frames: usize,
+    pub target_frames: usize,
+    pub val_frames: usize,
+    pub pa_checkpoint: PathBuf,
+    pub final_checkpoint: Option<PathBuf>,
+    /// The source sensor height VPP put target frames at.
+    pub source_height_m: Option<f64>,
+    pub vpp: Option<VppCounts>,
+    /// Target validation: the PA model as it is, the PA model through VPP, the adapted model.
+    pub source_only: Option<ApSummary>,
+    pub source_only_vpp: Option<ApSummary>,
+    pub adapted: Option<ApSummary>,
+    pub pseudo_labels: usize,
+    pub pseudo_label_quality: Vec<QualityRow>,
+    pub pa_seconds: f64,
+    pub ka_seconds: f64,
+    pub total_seconds: f64,
+}
+
+/// Errors unless some of the target's annotated classes are the detector's (a target that names
+/// its cars `car` or `vehicle.car` would silently train and score nothing).
+pub fn check_classes(subset: &Subset, cfg: &DetectorConfig, what: &str) -> Result<()> {
+    let names: BTreeSet<String> = subset.infos()?.into_iter().flat_map(|i| i.objects).map(|o| o.name).collect();
+    if names.is_empty() || names.iter().any(|n| cfg.class_index(n).is_some()) {
+        return Ok(());
+    }
+    Err(NnError::Input(format!(
+        "{what} labels use the classes {names:?}, none of which is among the detector's {:?} (class_aliases {:?}): map them with class_aliases",
+        cfg.classes, cfg.class_aliases
+    )))
+}
+
+/// The parts of a config that shape the network (everything but training and post-processing).
+fn architecture(cfg: &DetectorConfig) -> toml::Table {
+    let mut t: toml::Table = toml::from_str(&cfg.to_toml()).unwrap_or_default();
+    for k in ["name", "train", "post", "loss_weights"] {
+        t.remove(k);
+    }
+    t
+}
+
+/// Errors naming the differing sections when a checkpoint's network is not `cfg`'s.
+pub fn check_architecture(path: &Path, ck_cfg: &DetectorConfig, cfg: &DetectorConfig) -> Result<()> {
+    let (a, b) = (architecture(ck_cfg), architecture(cfg));
+    let keys: BTreeSet<&String> = a.keys().chain(b.keys()).collect();
+    let differ: Vec<&str> = keys.into_iter().filter(|k| a.get(*k) != b.get(*k)).map(|k| k.as_str()).collect();
+    if differ.is_empty() {
+        return Ok(());
+    }
+    Err(NnError::Checkpoint {
+        path: path.to_path_buf(),
+        message: format!("was trained with another architecture than this config's detector (differs in {differ:?})"),
+    })
+}
+
+fn latest_checkpoint(dir: &Path) -> Option<PathBuf> {
+    let entries = std::fs::read_dir(dir).ok()?;
+    entries
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().to_string();
+            let n: usize = name.strip_prefix("checkpoint_epoch_")?.strip_suffix(".safetensors")?.parse().ok()?;
+            Some((n, e.path()))
+        })
+        .max_by_key(|(n, _)| *n)
+        .map(|(_, p)| p)
+}
+
+fn evaluate(det: &Detector, prep: Arc<Preprocessor>, val: &Subset) -> Result<ApSummary> {
+    let (frames, _) = detect::detect_with(det, prep, val, 4, &mut |_, _| {})?;
+    let r = det.cfg().pillars.point_cloud_range;
+    let opts = eval::options(&det.cfg().classes, Some([r[0], r[1], r[3], r[4]]), None);
+    Ok(eval::evaluate(&frames, &opts)?.1)
+}
+
+/// Runs PA → pseudo-labels → KA and the evaluations; `on_event` sees progress.
+pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Result<AdaptReport> {
+    let t0 = Instant::now();
+    let cfg = &opts.config;
+    cfg.validate()?;
+    let det_cfg = &cfg.detector;
+    for (s, what) in [(&opts.source, "the source split"), (&opts.target, "the target split")] {
+        if s.is_empty() {
+            return Err(NnError::Input(format!("{what} has no frames")));
+        }
+    }
+    check_classes(&opts.source, det_cfg, "the source")?;
+    check_classes(&opts.target, det_cfg, "the target")?;
+    let val = opts.val.as_ref().filter(|v| !v.is_empty());
+    if opts.val.is_some() && val.is_none() {
+        return Err(NnError::Input("the validation split has no frames".into()));
+    }
+    if let Some(v) = val {
+        check_classes(v, det_cfg, "the validation")?;
+    }
+    if let Some(p) = &opts.pa_ckpt {
+        let ck = checkpoint::load(p)?;
+        check_architecture(p, &ck.config, det_cfg)?;
+    }
+    let out = &opts.out_dir;
+    if !opts.resume && ["pa", "ka", "adapt.json"].iter().any(|p| out.join(p).exists()) {
+        return Err(NnError::Input(format!(
+            "{} holds an earlier adaptation run: resume it or choose another folder",
+            out.display()
+        )));
+    }
+    std::fs::create_dir_all(out).map_err(|e| NnError::io(out, e))?;
+    let cfg_path = out.join("adapt_config.toml");
+    if opts.resume && cfg_path.exists() {
+        let old = std::fs::read_to_string(&cfg_path).map_err(|e| NnError::io(&cfg_path, e))?;
+        if old != cfg.to_toml() {
+            return Err(NnError::Input(format!("{}: the run there used another config", cfg_path.display())));
+        }
+    }
+    pi3det_data::io::write_atomic(&cfg_path, cfg.to_toml().as_bytes(), true)?;
+    let mut report = AdaptReport {
+        name: cfg.name.clone(),
+        components: cfg.components(),
+        source_frames: opts.source.len(),
+        target_frames: opts.target.len(),
+        val_frames: val.map_or(0, Subset::len),
+        ..Default::default()
+    };
+
+    // Pre-Adaptation.
+    on_event(AdaptEvent::Stage("pre-adaptation"));
+    let pa_path = match &opts.pa_ckpt {
+        Some(p) => p.clone(),
+        None => {
+            let dir = out.join("pa");
+            let done = dir.join("final.safetensors");
+            if done.exists() {
+                let ck = checkpoint::load(&done)?;
+                if ck.config.to_toml() != det_cfg.to_toml() {
+                    return Err(NnError::Checkpoint {
+                        path: done,
+                        message: "was trained with another detector config".into(),
+                    });
+                }
+                on_event(AdaptEvent::Message(format!("PA already finished: {}", done.display())));
+            } else {
+                let t = Instant::now();
+                let r = train::train(
+                    TrainOptions {
+                        config: det_cfg.clone(),
+                        train: opts.source.clone(),
+                        val: None,
+                        out_dir: dir.clone(),
+                        device: opts.device,
+                        resume: latest_checkpoint(&dir),
+                        stage: Some("pa".into()),
+                    },
+                    &mut |e| on_event(AdaptEvent::Pa(e)),
+                )?;
+                report.pa_seconds = t.elapsed().as_secs_f64();
+                let _ = r;
+            }
+            done
+        }
+    };
+    report.pa_checkpoint = pa_path.clone();
+    if opts.stop_after == Some(Stage::Pa) {
+        return Ok(report);
+    }
+    let (mut det, _) = checkpoint::load_detector(&pa_path, opts.device)?;
+    // The PA checkpoint's own config may differ in schedule (`--pa-ckpt`); adapt with ours.
+    det.prep = Arc::new(Preprocessor::new(det_cfg)?);
+
+    // The target's frame transform.
+    let plain: Arc<dyn FrameTransform> = Arc::new(ShiftZ(det_cfg.shift_z));
+    let vpp = match &cfg.vpp {
+        Some(v) => {
+            let h = match v.source_height_m {
+                Some(h) => h,
+                None => {
+                    let (h, n) = median_sensor_height(&opts.source, v.source_frames)?;
+                    on_event(AdaptEvent::Message(format!(
+                        "VPP: source sensor height {h:.2} m (median ground fit of {n} source frames)"
+                    )));
+                    h
+                }
+            };
+            report.source_height_m = Some(h);
+            let has_pose = opts.target.infos()?.iter().all(|i| i.world_from_lidar.is_some());
+            on_event(AdaptEvent::Message(if has_pose && v.attitude == super::AttitudeSource::Auto {
+                "VPP: target roll and pitch from the frames' poses, height from the ground fit".into()
+            } else {
+                "VPP: the target has no poses: roll, pitch and height from the ground-plane estimate".into()
+            }));
+            Some(Arc::new(VirtualPlatformPose::new(v, det_cfg.shift_z, h)))
+        }
+        None => None,
+    };
+    let target_transform: Arc<dyn FrameTransform> = match &vpp {
+        Some(v) => v.clone(),
+        None => plain.clone(),
+    };
+    let target_cfg = cfg.target_detector_config();
+    let target_prep = |ignore: bool| -> Result<Preprocessor> {
+        let p = Preprocessor::new(&target_cfg)?.with_frame_transform(target_transform.clone());
+        Ok(if ignore { p.with_ignore_score_below(cfg.pseudo_labels.positive_score) } else { p })
+    };
+    let plain_prep = Arc::new(Preprocessor::new(det_cfg)?);
+
+    if let Some(v) = val {
+        on_event(AdaptEvent::Stage("evaluating the source-only model"));
+        report.source_only = Some(evaluate(&det, plain_prep.clone(), v)?);
+        if vpp.is_some() {
+            report.source_only_vpp = Some(evaluate(&det, Arc::new(target_prep(false)?), v)?);
+        }
+    }
+
+    // Pseudo-labels and their quality (with and without VPP) where the target has ground truth.
+    let ka_dir = out.join("ka");
+    std::fs::create_dir_all(&ka_dir).map_err(|e| NnError::io(&ka_dir, e))?;
+    let labels_model = ka_dir.join("labels_model.safetensors");
+    let resume_ka = if opts.resume { latest_checkpoint(&ka_dir) } else { None };
+    let final_path = ka_dir.join("final.safetensors");
+    let make_labels = |det: &Detector, on_event: &mut dyn FnMut(AdaptEvent<'_>)| -> Result<Vec<FrameDetections>> {
+        on_event(AdaptEvent::Stage("pseudo-labelling the target"));
+        pseudo_labels::generate(det, Arc::new(target_prep(false)?), &opts.target, &cfg.pseudo_labels, &mut |d, t| {
+            on_event(AdaptEvent::Labels { done: d, total: t })
+        })
+    };
+    let gt = opts.target.infos()?;
+    let has_gt = gt.iter().any(|i| !i.objects.is_empty());
+    let r = det_cfg.pillars.point_cloud_range;
+    let bev = [r[0], r[1], r[3], r[4]];
+    let pos = cfg.pseudo_labels.positive_score;
+    let mut labels = if let (Some(_), true) = (&resume_ka, labels_model.exists()) {
+        let (m, _) = checkpoint::load_detector(&labels_model, opts.device)?;
+        make_labels(&m, on_event)?
+    } else {
+        checkpoint::save(&labels_model, &det, None, &TrainState { stage: Some("ka".into()), ..Default::default() })?;
+        make_labels(&det, on_event)?
+    };
+    if has_gt {
+        let q = pseudo_labels::quality(&labels, &gt, det_cfg, pos, &[0.5, 0.7], bev);
+        let name = if vpp.is_some() { "PA model, through VPP" } else { "PA model" };
+        report.pseudo_label_quality.push(QualityRow { labels: name.into(), rows: q });
+        if vpp.is_some() {
+            let (raw, _) = detect::detect_with(&det, plain_prep.clone(), &opts.target, 4, &mut |_, _| {})?;
+            let q = pseudo_labels::quality(&raw, &gt, det_cfg, pos, &[0.5, 0.7], bev);
+            report
+                .pseudo_label_quality
+                .insert(0, QualityRow { labels: "PA model, sensor frame (no VPP)".into(), rows: q });
+        }
+    }
+    detect::write_jsonl(&out.join("pseudo_labels.jsonl"), &labels)?;
+
+    // Knowledge-Adaptation.
+    on_event(AdaptEvent::Stage("knowledge-adaptation"));
+    let t_ka = Instant::now();
+    let (augments, _) = build_augments(&plain_prep, &opts.source)?;
+    let source = DomainData { subset: opts.source.clone(), prep: plain_prep.clone(), augments: Arc::new(augments) };
+    let target_augments = {
+        let p = target_prep(true)?;
+        Arc::new(build_augments(&p, &opts.target)?.0)
+    };
+    let target_data = |labels: &[FrameDetections]| -> Result<DomainData> {
+        let subset = PseudoLabeled::new(&opts.target, labels)?.subset(&opts.target);
+        Ok(DomainData { subset, prep: Arc::new(target_prep(true)?), augments: target_augments.clone() })
+    };
+    let mut ka = KnowledgeAdaptation::new(&det, &cfg.ka, opts.target.len());
+    let mut start = 0;
+    if let Some(p) = &resume_ka {
+        let ck = checkpoint::load(p)?;
+        if ck.state.stage.as_deref() != Some("ka") {
+            return Err(NnError::Checkpoint { path: p.clone(), message: "is not a KA checkpoint".into() });
+        }
+        ck.load_into(&mut det, p)?;
+        ka.optim.load_state(&ck.tensors, ck.state.step)?;
+        start = ck.state.epoch;
+        on_event(AdaptEvent::Message(format!("KA resumes after epoch {start} ({})", p.display())));
+    }
+    let mut target = target_data(&labels)?;
+    report.pseudo_labels = labels.iter().map(|f| f.objects.iter().filter(|o| o.score >= Some(pos)).count()).sum();
+    let refresh = cfg.pseudo_labels.refresh_every;
+    for epoch in start..cfg.ka.epochs {
+        if refresh > 0 && epoch > 0 && epoch % refresh == 0 && epoch != start {
+            checkpoint::save(
+                &labels_model,
+                &det,
+                None,
+                &TrainState { stage: Some("ka".into()), ..Default::default() },
+            )?;
+            labels = make_labels(&det, on_event)?;
+            target = target_data(&labels)?;
+            on_event(AdaptEvent::Stage("knowledge-adaptation"));
+        }
+        let t = Instant::now();
+        let mean_loss =
+            ka.epoch(&det, epoch, &source, &target, opts.device, &mut |s| on_event(AdaptEvent::KaStep(s)))?;
+        on_event(AdaptEvent::KaEpoch { epoch, mean_loss, seconds: t.elapsed().as_secs_f64() });
+        let state = TrainState {
+            epoch: epoch + 1,
+            step: ka.optim.step,
+            total_steps: ka.total_steps,
+            train_seconds: t_ka.elapsed().as_secs_f64(),
+            last_loss: Some(mean_loss),
+            stage: Some("ka".into()),
+        };
+        let path = if epoch + 1 == cfg.ka.epochs {
+            final_path.clone()
+        } else {
+            ka_dir.join(format!("checkpoint_epoch_{}.safetensors", epoch + 1))
+        };
+        let moments = (epoch + 1 < cfg.ka.epochs).then(|| ka.optim.state());
+        checkpoint::save(&path, &det, moments, &state)?;
+    }
+    if start >= cfg.ka.epochs && final_path.exists() {
+        let ck = checkpoint::load(&final_path)?;
+        ck.load_into(&mut det, &final_path)?;
+    }
+    report.ka_seconds = t_ka.elapsed().as_secs_f64();
+    report.final_checkpoint = Some(final_path);
+    report.vpp = vpp.as_ref().map(|v| v.counts());
+    if opts.stop_after == Some(Stage::Ka) {
+        return Ok(report);
+    }
+    if let Some(v) = val {
+        on_event(AdaptEvent::Stage("evaluating the adapted model"));
+        report.adapted = Some(evaluate(&det, Arc::new(target_prep(false)?), v)?);
+    }
+    report.vpp = vpp.as_ref().map(|v| v.counts());
+    report.total_seconds = t0.elapsed().as_secs_f64();
+    let json = serde_json::to_vec_pretty(&report).unwrap_or_default();
+    pi3det_data::io::write_atomic(&out.join("adapt.json"), &json, true)?;
+    pi3det_data::io::write_atomic(&out.join("adapt.md"), markdown(&report, det_cfg).as_bytes(), true)?;
+    Ok(report)
+}
+
+/// The report as markdown: AP of the source-only and adapted models, pseudo-label quality.
+pub fn markdown(r: &AdaptReport, cfg: &DetectorConfig) -> String {
+    let mut s = format!("# {} — components {:?}\n\n", r.name, r.components);
+    s += "| model on the target | ";
+    s += &cfg.classes.iter().map(|c| format!("{c} BEV | {c} 3D")).collect::<Vec<_>>().join(" | ");
+    s += " |\n| --- |";
+    s += &" --- | --- |".repeat(cfg.classes.len());
+    s += "\n";
+    for (name, a) in [
+        ("source-only (PA)", &r.source_only),
+        ("source-only (PA) through VPP", &r.source_only_vpp),
+        ("adapted (KA)", &r.adapted),
+    ] {
+        if let Some(a) = a {
+            s += &format!("| {name} |");
+            for c in &cfg.classes {
+                match a.get(c) {
+                    Some(x) => s += &format!(" {:.1} | {:.1} |", x.bev_r40, x.d3_r40),
+                    None => s += " – | – |",
+                }
+            }
+            s += "\n";
+        }
+    }
+    if !r.pseudo_label_quality.is_empty() {
+        s += "\nPseudo-labels (positives) against the target's ground truth:\n\n";
+        let rows: Vec<(String, Vec<LabelQuality>)> =
+            r.pseudo_label_quality.iter().map(|q| (q.labels.clone(), q.rows.clone())).collect();
+        s += &pseudo_labels::quality_table(&rows);
+    }
+    if let Some(v) = &r.vpp {
+        s += &format!(
+            "\nVPP: {} target frames levelled ({} from poses, {} from the ground fit, {} without ground kept the plain shift); source height {:.2} m.\n",
+            v.frames,
+            v.from_pose,
+            v.from_ground,
+            v.no_ground,
+            r.source_height_m.unwrap_or(f64::NAN)
+        );
+    }
+    s
+}

@@ -1,0 +1,253 @@
+//! Pseudo-labels for Knowledge-Adaptation (ST3D's recipe, which Pi3DET-Net follows): the
+//! pre-adapted detector runs on the target's unlabelled training frames (through Virtual
+//! Platform Pose when it is on); boxes scoring at least `positive_score` teach like ground truth,
+//! boxes between `ignore_score` and `positive_score` are *ignored* (anchors, centres and RoIs
+//! matched to them leave both losses: [`crate::preprocess::Preprocessor::with_ignore_score_below`]),
+//! lower ones are dropped. They are written as `pseudo_labels.jsonl`, the detection format
+//! `pi3det eval --det` scores against the target's ground truth, and [`quality`] measures their
+//! precision and recall directly.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::Arc;
+
+use pi3det_data::{DataError, Dataset, Format, FrameInfo, Object};
+use pi3det_geometry::{iou_3d, Box3d};
+use serde::{Deserialize, Serialize};
+
+use crate::config::DetectorConfig;
+use crate::data_loader::Subset;
+use crate::detect::{self, FrameDetections};
+use crate::detector::Detector;
+use crate::error::{NnError, Result};
+use crate::preprocess::Preprocessor;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PseudoLabelConfig {
+    /// Boxes at or above this score are positives.
+    pub positive_score: f64,
+    /// Boxes between this and `positive_score` are ignored; lower ones are dropped.
+    pub ignore_score: f64,
+    /// Regenerate the pseudo-labels with the current model every this many KA epochs (0: never).
+    pub refresh_every: usize,
+}
+
+impl Default for PseudoLabelConfig {
+    fn default() -> Self {
+        Self { positive_score: 0.5, ignore_score: 0.2, refresh_every: 0 }
+    }
+}
+
+impl PseudoLabelConfig {
+    pub fn validate(&self) -> Result<()> {
+        if !(0.0 <= self.ignore_score && self.ignore_score <= self.positive_score && self.positive_score < 1.0) {
+            return Err(NnError::Config(format!(
+                "pseudo_labels: need 0 ≤ ignore_score ≤ positive_score < 1 (got {} and {})",
+                self.ignore_score, self.positive_score
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Detections of `det` on `subset` (frames prepared by `prep`), keeping boxes scoring at least
+/// `cfg.ignore_score`; one entry per frame of `subset`, in its order.
+pub fn generate(
+    det: &Detector,
+    prep: Arc<Preprocessor>,
+    subset: &Subset,
+    cfg: &PseudoLabelConfig,
+    on_batch: &mut dyn FnMut(usize, usize),
+) -> Result<Vec<FrameDetections>> {
+    let (mut frames, _) = detect::detect_with(det, prep, subset, 4, on_batch)?;
+    for f in &mut frames {
+        f.objects.retain(|o| o.score.is_some_and(|s| s >= cfg.ignore_score));
+    }
+    Ok(frames)
+}
+
+/// A dataset whose frames carry pseudo-labels instead of their own annotations (frames without
+/// an entry have none).
+pub struct PseudoLabeled {
+    inner: Arc<dyn Dataset>,
+    labels: HashMap<usize, Vec<Object>>,
+}
+
+impl PseudoLabeled {
+    /// `frames[k]` labels dataset frame `subset.indices[k]`.
+    pub fn new(subset: &Subset, frames: &[FrameDetections]) -> Result<Self> {
+        if frames.len() != subset.len() {
+            return Err(NnError::Input(format!(
+                "{} pseudo-labelled frames for a subset of {}",
+                frames.len(),
+                subset.len()
+            )));
+        }
+        let labels = subset.indices.iter().zip(frames).map(|(&i, f)| (i, f.objects.clone())).collect();
+        Ok(Self { inner: subset.dataset.clone(), labels })
+    }
+
+    /// The same frames as `subset`, read through the pseudo-labels.
+    pub fn subset(self, subset: &Subset) -> Subset {
+        Subset { dataset: Arc::new(self), indices: subset.indices.clone() }
+    }
+}
+
+impl Dataset for PseudoLabeled {
+    fn format(&self) -> Format {
+        self.inner.format()
+    }
+
+    fn root(&self) -> &Path {
+        self.inner.root()
+    }
+
+    fn len(&self) -> usize {
+        self.inner.len()
+    }
+
+    fn info(&self, index: usize) -> std::result::Result<FrameInfo, DataError> {
+        let mut info = self.inner.info(index)?;
+        info.objects = self.labels.get(&index).cloned().unwrap_or_default();
+        Ok(info)
+    }
+}
+
+/// Precision and recall of one class at one IoU.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LabelQuality {
+    pub class: String,
+    pub iou: f64,
+    /// Pseudo-boxes (at or above the positive score) and ground-truth boxes compared.
+    pub labels: usize,
+    pub ground_truth: usize,
+    pub true_positives: usize,
+    pub precision: f64,
+    pub recall: f64,
+}
+
+/// Precision / recall of the positive pseudo-labels (score ≥ `min_score`) against the frames'
+/// ground truth `gt` (same order), per class of `cfg` and IoU in `ious` (3D IoU, greedy by
+/// score, one GT per label). Both sides are limited to the BEV square `bev_range`
+/// (`[x_min, y_min, x_max, y_max]`, LiDAR frame).
+pub fn quality(
+    labels: &[FrameDetections],
+    gt: &[FrameInfo],
+    cfg: &DetectorConfig,
+    min_score: f64,
+    ious: &[f64],
+    bev_range: [f64; 4],
+) -> Vec<LabelQuality> {
+    let inside = |b: &Box3d| b.x >= bev_range[0] && b.x < bev_range[2] && b.y >= bev_range[1] && b.y < bev_range[3];
+    let mut out = Vec::new();
+    for (k, class) in cfg.classes.iter().enumerate() {
+        for &thr in ious {
+            let (mut n_labels, mut n_gt, mut tp) = (0, 0, 0);
+            for (f, g) in labels.iter().zip(gt) {
+                let mut preds: Vec<&Object> = f
+                    .objects
+                    .iter()
+                    .filter(|o| cfg.class_index(&o.name) == Some(k) && o.score.unwrap_or(1.0) >= min_score)
+                    .filter(|o| inside(&o.box3d))
+                    .collect();
+                preds.sort_by(|a, b| b.score.unwrap_or(1.0).total_cmp(&a.score.unwrap_or(1.0)));
+                let truth: Vec<&Box3d> = g
+                    .objects
+                    .iter()
+                    .filter(|o| cfg.class_index(&o.name) == Some(k) && inside(&o.box3d))
+                    .map(|o| &o.box3d)
+                    .collect();
+                let mut used = vec![false; truth.len()];
+                for p in &preds {
+                    let best = truth
+                        .iter()
+                        .enumerate()
+                        .filter(|(j, _)| !used[*j])
+                        .map(|(j, t)| (j, iou_3d(&p.box3d, t)))
+                        .max_by(|a, b| a.1.total_cmp(&b.1));
+                    if let Some((j, iou)) = best.filter(|(_, iou)| *iou >= thr) {
+                        let _ = iou;
+                        used[j] = true;
+                        tp += 1;
+                    }
+                }
+                n_labels += preds.len();
+                n_gt += truth.len();
+            }
+            let ratio = |a: usize, b: usize| if b == 0 { 0.0 } else { a as f64 / b as f64 };
+            out.push(LabelQuality {
+                class: class.clone(),
+                iou: thr,
+                labels: n_labels,
+                ground_truth: n_gt,
+                true_positives: tp,
+                precision: ratio(tp, n_labels),
+                recall: ratio(tp, n_gt),
+            });
+        }
+    }
+    out
+}
+
+/// A markdown table of [`quality`] rows, one per (setting, class, IoU).
+pub fn quality_table(rows: &[(String, Vec<LabelQuality>)]) -> String {
+    let mut s = String::from(
+        "| pseudo-labels | class | IoU | labels | GT | precision | recall |\n| --- | --- | --- | --- | --- | --- | --- |\n",
+    );
+    for (name, qs) in rows {
+        for q in qs {
+            s += &format!(
+                "| {name} | {} | {} | {} | {} | {:.1} | {:.1} |\n",
+                q.class,
+                q.iou,
+                q.labels,
+                q.ground_truth,
+                100.0 * q.precision,
+                100.0 * q.recall
+            );
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(objects: Vec<Object>) -> FrameDetections {
+        FrameDetections { info: FrameInfo::new("0", "x.bin".into()), objects }
+    }
+
+    fn scored(name: &str, b: Box3d, s: f64) -> Object {
+        Object { score: Some(s), ..Object::new(name, b) }
+    }
+
+    #[test]
+    fn precision_and_recall_by_hand() {
+        let car = Box3d::new(10.0, 0.0, -1.0, 4.0, 2.0, 1.5, 0.0);
+        let car2 = Box3d::new(20.0, 5.0, -1.0, 4.0, 2.0, 1.5, 0.0);
+        let shifted = Box3d { x: 10.6, ..car }; // 3D IoU (3.4/4.6) ≈ 0.74
+        let labels = vec![frame(vec![
+            scored("Car", shifted, 0.9),
+            scored("Car", Box3d { x: 30.0, ..car }, 0.8), // false positive
+            scored("Car", car2, 0.3),                     // below the positive score
+            scored("Pedestrian", Box3d::new(5.0, 5.0, -1.0, 0.6, 0.6, 1.7, 0.0), 0.9),
+        ])];
+        let mut gt = FrameInfo::new("0", "x.bin".into());
+        gt.objects =
+            vec![Object::new("Car", car), Object::new("Car", car2), Object::new("Car", Box3d { x: 90.0, ..car })];
+        let cfg = DetectorConfig::default();
+        let q = quality(&labels, &[gt], &cfg, 0.5, &[0.5, 0.7, 0.8], [-50.0, -50.0, 50.0, 50.0]);
+        let car_q: Vec<&LabelQuality> = q.iter().filter(|q| q.class == "Car").collect();
+        // Two positives, two GT in range (the one at x = 90 is outside); one match up to IoU 0.74.
+        for q in &car_q[..2] {
+            assert_eq!((q.labels, q.ground_truth, q.true_positives), (2, 2, 1), "{q:?}");
+            assert!((q.precision - 0.5).abs() < 1e-12 && (q.recall - 0.5).abs() < 1e-12);
+        }
+        assert_eq!(car_q[2].true_positives, 0);
+        let ped = q.iter().find(|q| q.class == "Pedestrian").unwrap();
+        assert_eq!((ped.labels, ped.ground_truth, ped.precision), (1, 0, 0.0));
+        assert!(quality_table(&[("with VPP".into(), q)]).contains("| with VPP | Car | 0.5 | 2 | 2 | 50.0 | 50.0 |"));
+    }
+}

@@ -1,0 +1,223 @@
+//! Pi3DET-Net's pipeline end to end on a tiny simulated vehicle → drone task: every stage runs
+//! (PA with RPJ, GTD and PFA; pseudo-labels through VPP; KA with one source and one target batch
+//! per step), a run interrupted after PA and resumed ends with exactly the weights of an
+//! uninterrupted run, and bad input is refused with a clear error before anything is written.
+
+use std::path::Path;
+
+use pi3det_data::Platform;
+use pi3det_nn::adapt::pipeline::{self, AdaptConfig, AdaptEvent, AdaptOptions, Component, Stage};
+use pi3det_nn::backbone_2d::Backbone2dConfig;
+use pi3det_nn::checkpoint;
+use pi3det_nn::config::{PostConfig, TrainConfig};
+use pi3det_nn::data_loader::{open_split, Subset};
+use pi3det_nn::pillarize::PillarizeConfig;
+use pi3det_nn::roi_heads::RoiHeadConfig;
+use pi3det_nn::vfe::PillarVfeConfig;
+use pi3det_nn::DetectorConfig;
+use pi3det_sim::{ExportOptions, PlatformPlan, SimConfig};
+use tch::{Device, Tensor};
+
+/// libtorch's generator is one per process: tests that train take turns.
+static TORCH_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn config() -> AdaptConfig {
+    let base = AdaptConfig::default();
+    let mut train = TrainConfig { epochs: 1, batch_size: 1, ckpt_every: 1, ..TrainConfig::default() };
+    train.augment = base.detector.train.augment.clone();
+    let detector = DetectorConfig {
+        name: "tiny_pi3det_net".into(),
+        shift_z: 1.9,
+        pillars: PillarizeConfig {
+            // Wide enough for a drone's ground (seen from up to 20 m, little of it nearby).
+            point_cloud_range: [-25.6, -25.6, -2.0, 25.6, 25.6, 4.0],
+            pillar_size: [0.8, 0.8],
+            max_points_per_pillar: 8,
+            max_pillars_train: 4000,
+            max_pillars_test: 4000,
+        },
+        vfe: PillarVfeConfig { num_filters: vec![16] },
+        backbone: Backbone2dConfig {
+            layer_nums: vec![1, 1],
+            layer_strides: vec![2, 2],
+            num_filters: vec![16, 16],
+            upsample_strides: vec![1, 2],
+            num_upsample_filters: vec![16, 16],
+        },
+        roi_head: Some(RoiHeadConfig {
+            point_channels: 8,
+            shared_fc: vec![32],
+            cls_fc: vec![16],
+            reg_fc: vec![16],
+            ..Default::default()
+        }),
+        neck: base.detector.neck.clone(),
+        pfa: Some(pi3det_nn::adapt::PfaConfig { latent_channels: 8, hidden_channels: 16, ..Default::default() }),
+        post: PostConfig { score_threshold: 0.05, ..PostConfig::default() },
+        train,
+        ..DetectorConfig::default()
+    };
+    let mut cfg = AdaptConfig { name: "tiny".into(), detector, ..base };
+    cfg.ka.epochs = 2;
+    // An untrained PA model scores low: let its boxes through as pseudo-labels.
+    cfg.pseudo_labels.positive_score = 0.1;
+    cfg.pseudo_labels.ignore_score = 0.05;
+    cfg
+}
+
+fn weights(path: &Path) -> Vec<(String, Tensor)> {
+    let ck = checkpoint::load(path).unwrap();
+    let mut v: Vec<(String, Tensor)> = ck.tensors.into_iter().filter(|(k, _)| k.starts_with("model.")).collect();
+    v.sort_by(|a, b| a.0.cmp(&b.0));
+    v
+}
+
+struct Data {
+    _dir: tempfile::TempDir,
+    root: std::path::PathBuf,
+    source: Subset,
+    target: Subset,
+}
+
+fn data() -> Data {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().to_path_buf();
+    let plans = [
+        PlatformPlan { platform: Platform::Vehicle, sequences: 2, frames: 3, val_sequences: 1 },
+        PlatformPlan { platform: Platform::Drone, sequences: 2, frames: 3, val_sequences: 1 },
+    ];
+    let opts =
+        ExportOptions { out: root.join("data"), seed: 3, overwrite: false, per_platform_folders: true, layout: None };
+    pi3det_sim::export(&SimConfig::default(), &plans, &opts, &mut |_, _| {}).unwrap();
+    let open = |p: &str, s: &str| Subset::all(open_split(&root.join("data").join(p).join(s), Some(s)).unwrap());
+    Data { source: open("vehicle", "train"), target: open("drone", "train"), root, _dir: dir }
+}
+
+fn options(cfg: &AdaptConfig, d: &Data, out: &Path) -> AdaptOptions {
+    AdaptOptions {
+        config: cfg.clone(),
+        source: d.source.clone(),
+        target: d.target.clone(),
+        val: None,
+        out_dir: out.to_path_buf(),
+        device: Device::Cpu,
+        pa_ckpt: None,
+        resume: false,
+        stop_after: Some(Stage::Ka),
+    }
+}
+
+#[test]
+fn stages_run_and_resume_across_pa_ka_reproduces_an_uninterrupted_run() {
+    let _turn = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    tch::set_num_threads(1);
+    let d = data();
+    assert!(d.source.len() >= 3 && d.target.len() >= 3);
+    let cfg = config();
+    assert_eq!(cfg.components(), vec![Component::Rpj, Component::Vpp, Component::Gtd, Component::Pfa]);
+
+    // Uninterrupted, recording the steps and PA's loss terms.
+    let a = d.root.join("a");
+    let mut steps = Vec::new();
+    let mut pa_terms: Vec<&'static str> = Vec::new();
+    let report = pipeline::run(options(&cfg, &d, &a), &mut |e| match e {
+        AdaptEvent::KaStep(s) => steps.push(s.clone()),
+        AdaptEvent::Pa(pi3det_nn::train::Event::Step(s)) => pa_terms = s.terms.iter().map(|(n, _)| *n).collect(),
+        _ => {}
+    })
+    .unwrap();
+    for t in ["rot", "pfa_roi"] {
+        assert!(pa_terms.contains(&t), "PA computes {t}: {pa_terms:?}");
+    }
+    // Every KA step trained on a source batch and a target batch.
+    assert_eq!(steps.len(), cfg.ka.epochs * d.target.len(), "{:?}", report);
+    assert!(steps.iter().all(|s| s.source > 0.0 && s.target > 0.0 && s.loss >= s.source + s.target - 1e-6));
+    assert!(report.vpp.unwrap().frames == d.target.len(), "{:?}", report.vpp);
+    assert!(a.join("pseudo_labels.jsonl").is_file());
+    let ck = checkpoint::load(&a.join("pa/final.safetensors")).unwrap();
+    assert_eq!(ck.state.stage.as_deref(), Some("pa"));
+    let ck = checkpoint::load(&a.join("ka/checkpoint_epoch_1.safetensors")).unwrap();
+    assert_eq!(ck.state.stage.as_deref(), Some("ka"));
+
+    // Stopped after PA, then resumed: same final weights.
+    let b = d.root.join("b");
+    let mut o = options(&cfg, &d, &b);
+    o.stop_after = Some(Stage::Pa);
+    pipeline::run(o, &mut |_| {}).unwrap();
+    assert!(b.join("pa/final.safetensors").is_file() && !b.join("ka").exists());
+    // Without resume the folder is refused.
+    let err = pipeline::run(options(&cfg, &d, &b), &mut |_| {}).unwrap_err().to_string();
+    assert!(err.contains("earlier adaptation run"), "{err}");
+    let mut o = options(&cfg, &d, &b);
+    o.resume = true;
+    pipeline::run(o, &mut |_| {}).unwrap();
+    for ((na, ta), (_, tb)) in
+        weights(&a.join("pa/final.safetensors")).iter().zip(&weights(&b.join("pa/final.safetensors")))
+    {
+        assert!(ta.equal(tb), "PA: {na} differs between two identical runs");
+    }
+    let (la, lb) = (
+        std::fs::read_to_string(a.join("pseudo_labels.jsonl")).unwrap(),
+        std::fs::read_to_string(b.join("pseudo_labels.jsonl")).unwrap(),
+    );
+    assert_eq!(la, lb, "pseudo-labels differ");
+    let (wa, wb) = (weights(&a.join("ka/final.safetensors")), weights(&b.join("ka/final.safetensors")));
+    assert_eq!(wa.len(), wb.len());
+    for ((na, ta), (nb, tb)) in wa.iter().zip(&wb) {
+        assert_eq!(na, nb);
+        assert!(ta.equal(tb), "{na} differs after resuming across PA → KA");
+    }
+
+    // Resumed from KA's epoch-1 checkpoint (the final one removed): same weights again.
+    std::fs::remove_file(b.join("ka/final.safetensors")).unwrap();
+    let mut o = options(&cfg, &d, &b);
+    o.resume = true;
+    pipeline::run(o, &mut |_| {}).unwrap();
+    for ((na, ta), (_, tb)) in wa.iter().zip(&weights(&b.join("ka/final.safetensors"))) {
+        assert!(ta.equal(tb), "{na} differs after resuming inside KA");
+    }
+}
+
+#[test]
+fn bad_input_is_refused_before_anything_is_written() {
+    let _turn = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    tch::set_num_threads(1);
+    let d = data();
+    let cfg = config();
+    let run = |o: AdaptOptions| pipeline::run(o, &mut |_| {}).map(|_| ()).unwrap_err().to_string();
+
+    // A target whose labels use other class names.
+    let mut renamed = cfg.clone();
+    renamed.detector.class_aliases.clear();
+    renamed.detector.classes = vec!["car".into(), "pedestrian".into()];
+    renamed.detector.train.augment.retain(|a| !matches!(a, pi3det_nn::augment::AugmentConfig::GtSampling(_)));
+    if let Some(pi3det_nn::dense_heads::AnchorHeadConfig { anchors, .. }) = match &mut renamed.detector.head {
+        pi3det_nn::config::HeadConfig::Anchor(a) => Some(a),
+        _ => None,
+    } {
+        anchors[0].class = "car".into();
+        anchors[1].class = "pedestrian".into();
+    }
+    let out = d.root.join("classes");
+    let err = run(options(&renamed, &d, &out));
+    assert!(err.contains("none of which") && err.contains("Car"), "{err}");
+    assert!(!out.exists(), "nothing written");
+
+    // A target split without frames.
+    let mut o = options(&cfg, &d, &d.root.join("empty"));
+    o.target = Subset { indices: Vec::new(), ..d.target.clone() };
+    let err = run(o);
+    assert!(err.contains("target split has no frames"), "{err}");
+
+    // A PA checkpoint of another architecture.
+    let other = cfg.without(&[Component::Gtd]);
+    let out = d.root.join("other");
+    let mut o = options(&other, &d, &out);
+    o.stop_after = Some(Stage::Pa);
+    pipeline::run(o, &mut |_| {}).unwrap();
+    let mut o = options(&cfg, &d, &d.root.join("with_pa"));
+    o.pa_ckpt = Some(out.join("pa/final.safetensors"));
+    let err = run(o);
+    assert!(err.contains("another architecture") && err.contains("neck"), "{err}");
+    assert!(!d.root.join("with_pa").exists(), "nothing written");
+}
