@@ -118,7 +118,12 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
     let (xd, td) = (x.to_device(opts.device), t.to_device(opts.device));
     let gt: Vec<crate::data_loader::FrameGt> = batch
         .iter()
-        .map(|s| crate::data_loader::FrameGt { boxes: s.boxes.clone(), classes: s.classes.clone() })
+        .map(|s| crate::data_loader::FrameGt {
+            boxes: s.boxes.clone(),
+            classes: s.classes.clone(),
+            ignored: s.ignored.clone(),
+            ignored_classes: s.ignored_classes.clone(),
+        })
         .collect();
     let mut optim = Optimizer::new(det.named_trainables(), &cfg.train);
     let sync = || {

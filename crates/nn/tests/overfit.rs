@@ -112,7 +112,7 @@ fn overfit_with(head: HeadConfig, roi: Option<RoiHeadConfig>, transform: Option<
     let pillars = prep.pillarizer().unwrap().run(&sample.points, cfg.pillars.max_pillars_train);
     let inputs = prep.collate_inputs(&[&pillars]);
     let targets = prep.collate_targets(&[&prep.targets(&sample)]).unwrap();
-    let gt = [FrameGt { boxes: sample.boxes.clone(), classes: sample.classes.clone() }];
+    let gt = [FrameGt { boxes: sample.boxes.clone(), classes: sample.classes.clone(), ..Default::default() }];
     let mut opt = Optimizer::new(det.named_trainables(), &cfg.train);
     let schedule = OneCycle::new(&cfg.train, steps);
     let mut rng = ChaCha8Rng::seed_from_u64(0);
