@@ -121,6 +121,8 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
         .map(|s| crate::data_loader::FrameGt {
             boxes: s.boxes.clone(),
             classes: s.classes.clone(),
+            ignored: s.ignored.clone(),
+            ignored_classes: s.ignored_classes.clone(),
             ..Default::default()
         })
         .collect();

@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use crate::augment::Augment;
 use crate::dense_heads::{BatchTargets, FrameTargets};
 use crate::error::{NnError, Result};
-use crate::pillarize::Pillars;
+use crate::pillarize::{Grid, Pillars};
 use crate::preprocess::{Inputs, Preprocessor};
 use pi3det_geometry::{Box3d, Pose};
 
@@ -107,7 +107,8 @@ pub struct Batch {
     pub dropped_points: usize,
 }
 
-/// Ground-truth boxes of a frame and their class indices.
+/// Ground-truth boxes of a frame and their class indices, and the ignored boxes (with theirs)
+/// that no stage may treat as background ([`crate::augment::Sample::ignored`]).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct FrameGt {
     pub boxes: Vec<Box3d>,
@@ -115,6 +116,8 @@ pub struct FrameGt {
     /// Roll and pitch (rad) Random Platform Jitter applied to the frame (the target of the GTD
     /// rotation loss), when it did.
     pub platform_jitter: Option<[f64; 2]>,
+    pub ignored: Vec<Box3d>,
+    pub ignored_classes: Vec<usize>,
 }
 
 /// A frame prepared for the network.
@@ -153,34 +156,40 @@ pub fn prepare_frame(
         for a in augments {
             a.apply(&mut s, &mut rng);
         }
-        // Boxes whose centre left the grid cannot be learnt; headings back to [−π, π).
-        let g = prep.grid;
-        let keep: Vec<bool> = s.boxes.iter().map(|b| g.contains_xy(b.x, b.y)).collect();
-        let mut k = 0;
-        s.boxes.retain(|_| {
-            k += 1;
-            keep[k - 1]
-        });
-        let mut k = 0;
-        s.classes.retain(|_| {
-            k += 1;
-            keep[k - 1]
-        });
-        for b in &mut s.boxes {
-            *b = b.with_wrapped_heading();
-        }
+        // Boxes whose centre left the grid cannot be learnt (nor ignored); headings back to
+        // [−π, π).
+        keep_in_grid(&prep.grid, &mut s.boxes, &mut s.classes);
+        keep_in_grid(&prep.grid, &mut s.ignored, &mut s.ignored_classes);
         s.points.shuffle(&mut rng);
         let pillars = pillarizer.run(&s.points, cfg.pillars.max_pillars_train);
         if pillars.dropped_points > 0 {
             tracing::debug!("{}: {} points dropped by the pillar limits", frame.info.id, pillars.dropped_points);
         }
         let targets = Some(prep.targets(&s));
-        let gt = FrameGt { boxes: s.boxes, classes: s.classes, platform_jitter: s.platform_jitter };
+        let gt = FrameGt {
+            boxes: s.boxes,
+            classes: s.classes,
+            platform_jitter: s.platform_jitter,
+            ignored: s.ignored,
+            ignored_classes: s.ignored_classes,
+        };
         Ok(PreparedFrame { pillars, targets, detector_from_lidar: s.detector_from_lidar, gt })
     } else {
         let pillars = pillarizer.run(&s.points, cfg.pillars.max_pillars_test);
         Ok(PreparedFrame { pillars, targets: None, detector_from_lidar: s.detector_from_lidar, gt: FrameGt::default() })
     }
+}
+
+/// Keeps the boxes (and their classes) whose centre is on the grid, headings wrapped.
+fn keep_in_grid(grid: &Grid, boxes: &mut Vec<Box3d>, classes: &mut Vec<usize>) {
+    let (kept, kept_classes): (Vec<Box3d>, Vec<usize>) = boxes
+        .iter()
+        .zip(classes.iter())
+        .filter(|(b, _)| grid.contains_xy(b.x, b.y))
+        .map(|(b, &c)| (b.with_wrapped_heading(), c))
+        .unzip();
+    *boxes = kept;
+    *classes = kept_classes;
 }
 
 /// Prepares a batch of frames (rayon over the frames).
@@ -291,5 +300,52 @@ impl Drop for Loader {
         if let Some(h) = self.handle.take() {
             let _ = h.join();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::augment::{WorldFlip, WorldFlipConfig};
+    use crate::config::DetectorConfig;
+    use crate::dense_heads::anchor_head::AnchorBatchTargets;
+    use pi3det_data::{Object, PointCloud};
+
+    /// Ignored boxes go through augmentation like boxes, off-grid ones are dropped, and they
+    /// reach both the dense targets (−1 anchors) and the frame's GT for the second stage.
+    #[test]
+    fn ignored_boxes_reach_the_targets_and_the_gt() {
+        let car = Box3d::new(10.0, 5.0, 0.8, 4.2, 1.9, 1.6, 0.3);
+        let obj = |b: Box3d, score: Option<f64>, points: u32| Object {
+            score,
+            num_points: Some(points),
+            ..Object::new(if b.dx > 1.0 { "Car" } else { "Pedestrian" }, b)
+        };
+        let mut info = FrameInfo::new("0", "x.bin".into());
+        info.objects = vec![
+            obj(car, None, 20),
+            obj(Box3d { x: -10.0, y: -5.0, heading: 3.0, ..car }, Some(0.3), 0),
+            obj(Box3d::new(45.0, 0.0, 0.8, 0.7, 0.6, 1.7, 0.0), Some(0.2), 5), // off the grid
+        ];
+        let pts: Vec<[f32; 4]> = (0..20).map(|k| [9.0 + 0.1 * k as f32, 5.0, 0.8, 0.5]).collect();
+        let frame = Frame { info, points: PointCloud::from_xyzi(&pts) };
+        let cfg = DetectorConfig::default();
+        let flip: Vec<Box<dyn Augment>> =
+            vec![Box::new(WorldFlip(WorldFlipConfig { along_x: true, along_y: false, probability: 1.0 }))];
+        let prep = Preprocessor::new(&cfg).unwrap().with_ignore_score_below(0.5);
+        let p = prepare_frame(&prep, &flip, &frame, true, 3).unwrap();
+        let flipped = |b: Box3d| Box3d { y: -b.y, heading: -b.heading, ..b }.with_wrapped_heading();
+        assert_eq!(p.gt.boxes, vec![flipped(car)]);
+        assert_eq!(p.gt.ignored, vec![flipped(Box3d { x: -10.0, y: -5.0, heading: 3.0, ..car })]);
+        assert_eq!(p.gt.ignored_classes, vec![0]);
+        let ignored_anchors = |prep: &Preprocessor, p: PreparedFrame| {
+            let t = prep.collate_targets(&[p.targets.as_ref().unwrap()]).unwrap();
+            let t = t.downcast_ref::<AnchorBatchTargets>().unwrap();
+            t.labels.eq(-1).sum(tch::Kind::Int64).int64_value(&[])
+        };
+        let plain = Preprocessor::new(&cfg).unwrap();
+        let q = prepare_frame(&plain, &flip, &frame, true, 3).unwrap();
+        assert!(q.gt.ignored.is_empty() && q.gt.boxes == p.gt.boxes, "no threshold: the 0-point guess is dropped");
+        assert!(ignored_anchors(&prep, p) > ignored_anchors(&plain, q));
     }
 }

@@ -106,14 +106,34 @@ pub fn weighted_cross_entropy(logits: &Tensor, targets: &Tensor, weights: &Tenso
 /// CenterNet focal loss on a heatmap: `logits` and Gaussian `targets` of the same shape, positives
 /// where the target is 1; normalised by the number of positives.
 pub fn center_focal_loss(logits: &Tensor, targets: &Tensor) -> Tensor {
+    center_focal(logits, targets, None)
+}
+
+/// [`center_focal_loss`] over the cells where `mask` (same shape, 1 / 0) is 1: masked cells
+/// (ignored boxes) add nothing and get no gradient. Still normalised by all the peaks of
+/// `targets` (the real positives), so the loss scale does not depend on what is ignored.
+pub fn center_focal_loss_masked(logits: &Tensor, targets: &Tensor, mask: &Tensor) -> Tensor {
+    center_focal(logits, targets, Some(mask))
+}
+
+fn center_focal(logits: &Tensor, targets: &Tensor, mask: Option<&Tensor>) -> Tensor {
     let p = logits.sigmoid().clamp(1e-4, 1.0 - 1e-4);
-    let pos = targets.eq(1.0).to_kind(logits.kind());
-    let neg = one_minus(&pos);
-    let neg_w = one_minus(targets).pow_tensor_scalar(4.0);
     let k = logits.kind();
+    let pos = targets.eq(1.0).to_kind(k);
+    let num_pos = pos.sum(k).clamp_min(1.0);
+    let (pos, neg) = match mask {
+        Some(m) => {
+            let m = m.to_kind(k);
+            (&pos * &m, one_minus(&pos) * m)
+        }
+        None => {
+            let neg = one_minus(&pos);
+            (pos, neg)
+        }
+    };
+    let neg_w = one_minus(targets).pow_tensor_scalar(4.0);
     let pos_loss = (p.log() * one_minus(&p).square() * &pos).sum(k);
     let neg_loss = (one_minus(&p).log() * p.square() * neg_w * neg).sum(k);
-    let num_pos = pos.sum(k).clamp_min(1.0);
     -(pos_loss + neg_loss) / num_pos
 }
 

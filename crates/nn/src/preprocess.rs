@@ -55,6 +55,8 @@ pub struct Preprocessor {
     pub map: CenterMap,
     assigner: Box<dyn AnyAssigner>,
     transform: Arc<dyn FrameTransform>,
+    /// Scored objects (pseudo-labels) below this score are ignored, not boxes ([`frame_to_sample`]).
+    ignore_score_below: Option<f64>,
 }
 
 impl Preprocessor {
@@ -69,7 +71,14 @@ impl Preprocessor {
             origin: [grid.x_min, grid.y_min],
         };
         let assigner = cfg.head.assigner(&map, cfg.classes.len());
-        Ok(Self { cfg: cfg.clone(), grid, map, assigner, transform: Arc::new(ShiftZ(cfg.shift_z)) })
+        Ok(Self {
+            cfg: cfg.clone(),
+            grid,
+            map,
+            assigner,
+            transform: Arc::new(ShiftZ(cfg.shift_z)),
+            ignore_score_below: None,
+        })
     }
 
     /// Uses `transform` for every frame instead of the config's z shift.
@@ -78,9 +87,19 @@ impl Preprocessor {
         self
     }
 
-    /// Placeholder until the ignored band lands (branch ignore-band).
-    pub fn with_ignore_score_below(self, _threshold: f64) -> Self {
+    /// Self-training: objects with a score (pseudo-labels) below `threshold` become ignored boxes
+    /// of their class ([`Sample::ignored`]) instead of training targets; objects without a score
+    /// (ground truth) or scoring at least `threshold` stay boxes. Pseudo-labels below the low
+    /// threshold of the band are expected to be dropped before (they are not in the frame). A NaN
+    /// threshold ignores nothing.
+    pub fn with_ignore_score_below(mut self, threshold: f64) -> Self {
+        self.ignore_score_below = Some(threshold);
         self
+    }
+
+    /// The score below which objects are ignored, when set.
+    pub fn ignore_score_below(&self) -> Option<f64> {
+        self.ignore_score_below
     }
 
     pub fn pillarizer(&self) -> Result<Pillarizer> {
@@ -88,14 +107,17 @@ impl Preprocessor {
     }
 
     /// The frame in the detector's frame with its detectable boxes (those with at least
-    /// `min_points` points; 0 keeps all).
+    /// `min_points` points; 0 keeps all) and its ignored ones (see
+    /// [`Preprocessor::with_ignore_score_below`]).
     pub fn sample(&self, frame: &Frame, min_points: usize) -> Sample {
-        frame_to_sample(frame, &self.cfg, &self.transform.detector_from_lidar(frame), min_points)
+        let pose = self.transform.detector_from_lidar(frame);
+        frame_to_sample(frame, &self.cfg, &pose, min_points, self.ignore_score_below)
     }
 
-    /// Training targets of a sample (boxes in the detector's frame).
+    /// Training targets of a sample (boxes in the detector's frame; its ignored boxes are left
+    /// out of the losses).
     pub fn targets(&self, s: &Sample) -> FrameTargets {
-        self.assigner.assign(&s.boxes, &s.classes)
+        self.assigner.assign(&s.boxes, &s.classes, &s.ignored, &s.ignored_classes)
     }
 
     /// Stacks frames' targets.
@@ -131,8 +153,16 @@ impl Preprocessor {
 
 /// A frame moved into the detector's frame by `detector_from_lidar`, with the boxes of the
 /// detector's classes (at least `min_points` points; 0 keeps all). Non-finite points and
-/// degenerate boxes are left out.
-pub fn frame_to_sample(frame: &Frame, cfg: &DetectorConfig, detector_from_lidar: &Pose, min_points: usize) -> Sample {
+/// degenerate boxes are left out. With `ignore_score_below`, objects scoring below it go to
+/// [`Sample::ignored`] whatever their point count (an ignored box only removes anchors from the
+/// loss, so a sparse one does no harm); objects without a score are always boxes.
+pub fn frame_to_sample(
+    frame: &Frame,
+    cfg: &DetectorConfig,
+    detector_from_lidar: &Pose,
+    min_points: usize,
+    ignore_score_below: Option<f64>,
+) -> Sample {
     let rot = detector_from_lidar.rotation.to_rotation_matrix();
     let m = rot.matrix();
     let t = detector_from_lidar.translation.vector;
@@ -159,11 +189,19 @@ pub fn frame_to_sample(frame: &Frame, cfg: &DetectorConfig, detector_from_lidar:
     }
     let mut boxes = Vec::new();
     let mut classes = Vec::new();
+    let (mut ignored, mut ignored_classes) = (Vec::new(), Vec::new());
     for o in &frame.info.objects {
         let Some(k) = cfg.class_index(&o.name) else { continue };
         let b = o.box3d;
         if !b.to_array().iter().all(|v| v.is_finite()) || b.dx <= 0.0 || b.dy <= 0.0 || b.dz <= 0.0 {
             continue;
+        }
+        if let (Some(s), Some(t)) = (o.score, ignore_score_below) {
+            if s < t {
+                ignored.push(b.transformed(detector_from_lidar));
+                ignored_classes.push(k);
+                continue;
+            }
         }
         if min_points > 0 {
             let n = match o.num_points {
@@ -181,6 +219,8 @@ pub fn frame_to_sample(frame: &Frame, cfg: &DetectorConfig, detector_from_lidar:
         points,
         boxes,
         classes,
+        ignored,
+        ignored_classes,
         platform_jitter: None,
         sensor_z: t.z,
         detector_from_lidar: *detector_from_lidar,
@@ -219,7 +259,7 @@ mod tests {
             nalgebra::Translation3::new(2.0, -1.0, 1.8),
             nalgebra::UnitQuaternion::from_euler_angles(0.02, -0.03, 0.7),
         );
-        let s = frame_to_sample(&frame, &cfg, &pose, 1);
+        let s = frame_to_sample(&frame, &cfg, &pose, 1, None);
         assert_eq!(s.boxes.len(), 1);
         assert_eq!(s.detector_from_lidar, pose);
         let inside = s.points.iter().filter(|p| s.boxes[0].contains([p[0] as f64, p[1] as f64, p[2] as f64])).count();
@@ -231,7 +271,50 @@ mod tests {
             assert!((a - b).abs() < if j == 6 { 1e-3 } else { 1e-6 }, "{back:?} vs {car:?}");
         }
         // The plain shift is the config's default.
-        let shifted = frame_to_sample(&frame, &cfg, &ShiftZ(1.9).detector_from_lidar(&frame), 0);
+        let shifted = frame_to_sample(&frame, &cfg, &ShiftZ(1.9).detector_from_lidar(&frame), 0, None);
         assert!((shifted.boxes[0].z - (car.z + 1.9)).abs() < 1e-9 && shifted.sensor_z == 1.9);
+    }
+
+    /// Pseudo-labels below the threshold become ignored boxes of their class (whatever their
+    /// points); ground truth (no score) and confident pseudo-labels stay boxes; unknown classes
+    /// are dropped either way; without a threshold nothing changes.
+    #[test]
+    fn scored_objects_below_the_threshold_are_ignored() {
+        let car = Box3d::new(12.0, -3.0, -0.9, 4.5, 1.9, 1.6, 0.4);
+        let ped = Box3d::new(6.0, 2.0, -0.8, 0.7, 0.6, 1.7, 0.0);
+        let obj = |name: &str, b: Box3d, score: Option<f64>, points: u32| Object {
+            score,
+            num_points: Some(points),
+            ..Object::new(name, b)
+        };
+        let mut info = FrameInfo::new("0", "x.bin".into());
+        info.objects = vec![
+            obj("Car", car, None, 30),                              // GT
+            obj("Car", Box3d { x: 20.0, ..car }, Some(0.8), 30),    // confident
+            obj("Pedestrian", ped, Some(0.4), 0),                   // ignored, no points
+            obj("Car", Box3d { y: 5.0, ..car }, Some(0.3), 30),     // ignored
+            obj("Car", Box3d { x: 30.0, ..car }, Some(0.6), 30),    // at the threshold: kept
+            obj("Cyclist", Box3d { x: 8.0, ..ped }, Some(0.1), 30), // not a detector class
+            obj("Car", Box3d { x: 40.0, ..car }, Some(0.9), 0),     // too few points
+        ];
+        let frame = Frame { info, points: PointCloud::from_xyzi(&[]) };
+        let cfg = DetectorConfig::default();
+        let shift = Pose::translation(0.0, 0.0, 1.5);
+        let s = frame_to_sample(&frame, &cfg, &shift, 5, Some(0.6));
+        assert_eq!(s.boxes.iter().map(|b| b.x).collect::<Vec<_>>(), vec![12.0, 20.0, 30.0]);
+        assert_eq!(s.classes, vec![0, 0, 0]);
+        assert_eq!(s.ignored, vec![Box3d { z: ped.z + 1.5, ..ped }, Box3d { y: 5.0, z: car.z + 1.5, ..car }]);
+        assert_eq!(s.ignored_classes, vec![1, 0]);
+        // No threshold: every scored object is a box as before.
+        let plain = frame_to_sample(&frame, &cfg, &shift, 5, None);
+        assert_eq!(plain.boxes.len(), 4);
+        assert!(plain.ignored.is_empty() && plain.ignored_classes.is_empty());
+        // The same through the preprocessor (with its config's shift_z).
+        let prep = Preprocessor::new(&cfg).unwrap().with_ignore_score_below(0.6);
+        assert_eq!(prep.ignore_score_below(), Some(0.6));
+        let s = prep.sample(&frame, 5);
+        assert_eq!((s.boxes.len(), s.ignored.len()), (3, 2));
+        let plain = Preprocessor::new(&cfg).unwrap().sample(&frame, 5);
+        assert_eq!((plain.boxes.len(), plain.ignored.len()), (4, 0));
     }
 }

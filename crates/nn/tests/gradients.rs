@@ -62,7 +62,7 @@ fn anchor_loss_gradients_follow_the_assignment() {
     let anchors =
         Anchors::generate(&[(0, classes[0].clone()), (1, classes[1].clone())], 16, 16, [0.8, 0.8], [-6.4, -6.4]);
     let gt = vec![Box3d::new(1.1, -0.7, 0.8, 4.4, 1.9, 1.6, 0.2), Box3d::new(-3.0, 2.9, 0.85, 0.7, 0.6, 1.7, 1.2)];
-    let t = axis_aligned::assign(&anchors, &classes, &gt, &[0, 1]);
+    let t = axis_aligned::assign(&anchors, &classes, &gt, &[0, 1], &[], &[]);
     let n = anchors.len() as i64;
     let cfg = AnchorHeadConfig::default();
     let vs = nn::VarStore::new(Device::Cpu);
@@ -129,7 +129,7 @@ fn anchor_loss_gradients_follow_the_assignment() {
 fn center_loss_gradients_follow_the_heatmap() {
     let map = CenterMap { h: 12, w: 12, cell: [0.8, 0.8], origin: [-4.8, -4.8] };
     let gt = vec![Box3d::new(0.5, -1.3, 0.8, 4.3, 1.9, 1.6, 0.7)];
-    let t = center::assign(&CenterTargetConfig::default(), &map, 2, &gt, &[0]);
+    let t = center::assign(&CenterTargetConfig::default(), &map, 2, &gt, &[0], &[], &[]);
     let vs = nn::VarStore::new(Device::Cpu);
     let head = CenterHeadConfig::default().init(vs.root(), 8, 2, &pi3det_nn::BatchNorm::default(), &map);
     let hm = Tensor::full([1, 2, 12, 12], -2.0, (Kind::Float, Device::Cpu)).set_requires_grad(true);
@@ -138,6 +138,7 @@ fn center_loss_gradients_follow_the_heatmap() {
         heatmap: Tensor::from_slice(&t.heatmap).view([1, 2, 12, 12]),
         index: Tensor::from_slice(&t.index),
         codes: Tensor::from_slice(&t.codes).view([1, 8]),
+        mask: None,
     };
     let (total, _) = head.loss(&CenterOutput { heatmap: hm.shallow_clone(), codes: codes.shallow_clone() }, &targets);
     total.backward();

@@ -240,7 +240,7 @@ mod tests {
         let pose = vpp.detector_from_lidar(&frame);
         let counts = vpp.counts();
         assert_eq!((counts.from_pose, counts.from_ground), if with_pose { (1, 0) } else { (0, 1) });
-        let s = frame_to_sample(&frame, &DetectorConfig::default(), &pose, 0);
+        let s = frame_to_sample(&frame, &DetectorConfig::default(), &pose, 0, None);
         // The ground is level at the source's ground height shift_z − source_height = 0.1 m.
         let zs: Vec<f32> = s.points.iter().map(|p| p[2]).collect();
         let (lo, hi) = zs.iter().fold((f32::MAX, f32::MIN), |(a, b), &z| (a.min(z), b.max(z)));

@@ -1,7 +1,8 @@
 //! Ground-truth sampling (SECOND, Yan et al. 2018; OpenPCDet `DataBaseSampler`): a database of
 //! every training object's box and points; each frame gets up to `count` objects of a class (minus
 //! those it already has) pasted in at their recorded place when their box does not overlap
-//! (BEV IoU > 0) any box already there; the frame's own points inside a pasted box are removed.
+//! (BEV IoU > 0) any box already there, ignored ones included; the frame's own points inside a
+//! pasted box are removed.
 //! With `ground_align` (OpenPCDet's KITTI `USE_ROAD_PLANE`, here without a plane file) a pasted
 //! object is set down on the ground of the frame it goes into: its recorded z belongs to another
 //! frame, whose ground under that place can lie a metre higher or lower (terrain, platform tilt),
@@ -169,7 +170,8 @@ impl Augment for GtSampling {
             for k in picks {
                 let o = &pool[k];
                 let r = o.box3d.bev_radius();
-                let clash = s.boxes.iter().chain(pasted.iter().map(|p| &p.box3d)).any(|b| {
+                // Ignored boxes are occupied space too: an object may well stand there.
+                let clash = s.boxes.iter().chain(&s.ignored).chain(pasted.iter().map(|p| &p.box3d)).any(|b| {
                     let d = (b.x - o.box3d.x).hypot(b.y - o.box3d.y);
                     d < r + b.bev_radius() && bev_iou(b, &o.box3d) > 0.0
                 });
@@ -274,6 +276,33 @@ mod tests {
             assert_eq!(points_in_box(&s.points, b).len(), 50);
         }
         assert_eq!(s.points.len(), s0.points.len() + 100);
+    }
+
+    /// An ignored box is occupied space whatever its class: the database car that would land on
+    /// an ignored pedestrian box is not pasted, the database pedestrian is.
+    #[test]
+    fn ignored_boxes_block_pasting() {
+        let names = vec!["Car".to_string(), "Pedestrian".to_string()];
+        let s0 = sample();
+        let mut other = s0.clone();
+        for b in &mut other.boxes {
+            b.y += 20.0;
+        }
+        for p in &mut other.points {
+            p[1] += 20.0;
+        }
+        let cfg = GtSamplingConfig { ground_align: false, ..Default::default() };
+        let db = Arc::new(GtDatabase::build([&other], &names, &cfg));
+        let aug = GtSampling::new(cfg, db).with_classes(&names);
+        let mut free = s0.clone();
+        aug.apply(&mut free, &mut rng(2));
+        assert_eq!(free.classes, vec![0, 1, 0, 1], "both pasted when nothing is in the way");
+        let blocker = Box3d { heading: 0.0, dx: 3.0, dy: 3.0, ..other.boxes[0] };
+        let mut s = Sample { ignored: vec![blocker], ignored_classes: vec![1], ..s0.clone() };
+        aug.apply(&mut s, &mut rng(2));
+        assert_eq!(s.classes, vec![0, 1, 1]);
+        assert_eq!(s.boxes[2], other.boxes[1]);
+        assert_eq!((s.ignored.clone(), s.ignored_classes.clone()), (vec![blocker], vec![1]));
     }
 
     /// A frame whose ground lies 0.8 m higher than the database object's: the pasted car and its

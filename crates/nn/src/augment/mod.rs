@@ -31,6 +31,11 @@ pub struct Sample {
     pub points: Vec<[f32; 4]>,
     pub boxes: Vec<Box3d>,
     pub classes: Vec<usize>,
+    /// Boxes that teach nothing (self-training pseudo-labels of middling score) and their class
+    /// indices: anchors, heatmap cells and RoIs on them are left out of the losses of their class.
+    /// Scene-moving augmentations move them with `boxes` ([`Sample::all_boxes_mut`]).
+    pub ignored: Vec<Box3d>,
+    pub ignored_classes: Vec<usize>,
     /// Roll and pitch (rad) Random Platform Jitter applied, for a rotation-regression loss.
     pub platform_jitter: Option<[f64; 2]>,
     /// Height of the LiDAR origin in this sample's frame (the config's `shift_z`): the platform
@@ -41,6 +46,13 @@ pub struct Sample {
     pub detector_from_lidar: Pose,
     /// The frame's pose, when the data has one.
     pub world_from_lidar: Option<Pose>,
+}
+
+impl Sample {
+    /// The regular and the ignored boxes: what a transform of the whole scene moves.
+    pub fn all_boxes_mut(&mut self) -> impl Iterator<Item = &mut Box3d> {
+        self.boxes.iter_mut().chain(self.ignored.iter_mut())
+    }
 }
 
 /// One augmentation.
@@ -193,5 +205,45 @@ pub(crate) mod test_util {
                 "{b0:?} → {b1:?}"
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::test_util::*;
+    use super::*;
+
+    /// The test sample with an ignored copy of each of its boxes.
+    fn with_ignored_copies() -> Sample {
+        let mut s = sample();
+        s.ignored = s.boxes.clone();
+        s.ignored_classes = s.classes.clone();
+        s
+    }
+
+    /// Every scene transform moves an ignored box exactly like a regular box at the same place;
+    /// object rotation leaves ignored boxes alone.
+    #[test]
+    fn scene_transforms_move_ignored_boxes_like_boxes() {
+        let scene: Vec<Box<dyn Augment>> = vec![
+            Box::new(WorldFlip(WorldFlipConfig { along_x: true, along_y: false, probability: 1.0 })),
+            Box::new(WorldFlip(WorldFlipConfig { along_x: false, along_y: true, probability: 1.0 })),
+            Box::new(WorldRotation(WorldRotationConfig::default())),
+            Box::new(WorldScaling(WorldScalingConfig { range: [0.9, 1.1] })),
+            Box::new(RandomPlatformJitter(RandomPlatformJitterConfig::default())),
+        ];
+        for (i, a) in scene.iter().enumerate() {
+            let s0 = Sample { sensor_z: 1.8, ..with_ignored_copies() };
+            let mut s = s0.clone();
+            a.apply(&mut s, &mut rng(20 + i as u64));
+            assert_ne!(s.boxes, s0.boxes, "{} moved the boxes", a.name());
+            assert_eq!(s.ignored, s.boxes, "{} moved the ignored boxes like the boxes", a.name());
+            assert_eq!(s.ignored_classes, s0.ignored_classes);
+        }
+        let s0 = with_ignored_copies();
+        let mut s = s0.clone();
+        RandomObjectRotation(RandomObjectRotationConfig { range_rad: [0.2, 0.4] }).apply(&mut s, &mut rng(3));
+        assert_ne!(s.boxes, s0.boxes);
+        assert_eq!(s.ignored, s0.ignored);
     }
 }

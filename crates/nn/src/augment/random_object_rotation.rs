@@ -1,5 +1,8 @@
 //! Random object rotation (OpenPCDet `random_local_rotation`): each box and the points inside it
-//! turn about the box's vertical axis by an angle from `range_rad`.
+//! turn about the box's vertical axis by an angle from `range_rad`. Ignored boxes
+//! ([`Sample::ignored`]) and their points stay as they are (box and points still agree): they
+//! teach nothing, so turning them would gain nothing, and leaving them keeps the RNG draws, and
+//! so the augmentation of a seed, what they were without pseudo-labels.
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;

@@ -44,11 +44,12 @@ impl RandomPlatformJitter {
             p[2] = rf[2][0] * x + rf[2][1] * y + rf[2][2] * z + z0;
         }
         let yaw = RollPitchYaw::of(&q).yaw_rad;
-        for b in &mut s.boxes {
-            let c = q * nalgebra::Point3::new(b.x, b.y, b.z - s.sensor_z);
+        let sz = s.sensor_z;
+        for b in s.all_boxes_mut() {
+            let c = q * nalgebra::Point3::new(b.x, b.y, b.z - sz);
             b.x = c.x;
             b.y = c.y;
-            b.z = c.z + s.sensor_z;
+            b.z = c.z + sz;
             b.heading += yaw;
         }
         s.platform_jitter = Some([roll, pitch]);

@@ -32,7 +32,7 @@ impl WorldFlip {
         for p in &mut s.points {
             p[1] = -p[1];
         }
-        for b in &mut s.boxes {
+        for b in s.all_boxes_mut() {
             b.y = -b.y;
             b.heading = -b.heading;
         }
@@ -42,7 +42,7 @@ impl WorldFlip {
         for p in &mut s.points {
             p[0] = -p[0];
         }
-        for b in &mut s.boxes {
+        for b in s.all_boxes_mut() {
             b.x = -b.x;
             b.heading = std::f64::consts::PI - b.heading;
         }

@@ -25,7 +25,7 @@ impl WorldRotation {
     pub fn rotate(s: &mut Sample, angle: f64) {
         rotate_z(&mut s.points, angle);
         let (sn, c) = angle.sin_cos();
-        for b in &mut s.boxes {
+        for b in s.all_boxes_mut() {
             let (x, y) = (b.x, b.y);
             b.x = c * x - sn * y;
             b.y = sn * x + c * y;

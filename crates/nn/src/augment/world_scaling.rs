@@ -29,7 +29,7 @@ impl WorldScaling {
             p[1] *= ff;
             p[2] *= ff;
         }
-        for b in &mut s.boxes {
+        for b in s.all_boxes_mut() {
             b.x *= f;
             b.y *= f;
             b.z *= f;

@@ -184,8 +184,14 @@ impl TargetAssigner for AnchorAssigner {
     type Frame = AnchorTargets;
     type Batch = AnchorBatchTargets;
 
-    fn assign(&self, boxes: &[Box3d], classes: &[usize]) -> AnchorTargets {
-        axis_aligned::assign(&self.anchors, &self.classes, boxes, classes)
+    fn assign(
+        &self,
+        boxes: &[Box3d],
+        classes: &[usize],
+        ignored: &[Box3d],
+        ignored_classes: &[usize],
+    ) -> AnchorTargets {
+        axis_aligned::assign(&self.anchors, &self.classes, boxes, classes, ignored, ignored_classes)
     }
 
     /// Positives are weighted by 1 / (positives of their frame).
@@ -302,4 +308,77 @@ impl AnchorHead {
 pub fn make_anchors(cfg: &AnchorHeadConfig, h: usize, w: usize, cell: [f64; 2], origin: [f64; 2]) -> Anchors {
     let per_class: Vec<(usize, AnchorClassConfig)> = cfg.anchors.iter().cloned().enumerate().collect();
     Anchors::generate(&per_class, h, w, cell, origin)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn loss_values(head: &AnchorHead, out: &AnchorOutput, t: &AnchorBatchTargets) -> [f64; 4] {
+        let (total, [cls, loc, dir]) = head.loss(out, t);
+        [total, cls, loc, dir].map(|v| v.double_value(&[]))
+    }
+
+    /// An ignored car: the car anchors on it are −1 and count in no loss term (changing the
+    /// predictions there changes nothing), while as plain background they did count.
+    #[test]
+    fn ignored_anchors_add_nothing_to_the_loss() {
+        let map = CenterMap { h: 16, w: 16, cell: [0.8, 0.8], origin: [-6.4, -6.4] };
+        let cfg = AnchorHeadConfig::default();
+        let vs = nn::VarStore::new(Device::Cpu);
+        let head = cfg.init(vs.root(), 8, 2, &map);
+        let assigner = cfg.assigner(&map);
+        let a = assigner.anchors.per_location;
+        let ped = [Box3d::new(-3.0, 2.9, 0.85, 0.7, 0.6, 1.7, 1.2)];
+        let car = [Box3d::new(1.1, -0.7, 0.8, 4.4, 1.9, 1.6, 0.2)];
+        let ignored = assigner.assign(&ped, &[1], &car, &[0]);
+        let plain = assigner.assign(&ped, &[1], &[], &[]);
+        // Anchors the ignored box changed (the pedestrian's own in-between anchors are −1 in both).
+        let on_car: Vec<usize> = (0..plain.labels.len()).filter(|&k| ignored.labels[k] != plain.labels[k]).collect();
+        assert!(!on_car.is_empty());
+        for &k in &on_car {
+            assert_eq!(assigner.anchors.slot_class[k % a], 0, "only car anchors are ignored");
+            assert_eq!((ignored.labels[k], plain.labels[k]), (-1, 0), "background without the ignored box");
+        }
+        assert_eq!(ignored.pos_index, plain.pos_index, "an ignored box makes no positive");
+        // The ignored pedestrian-class version leaves every car anchor background.
+        let as_ped = assigner.assign(&ped, &[1], &car, &[1]);
+        assert!(on_car.iter().all(|&k| as_ped.labels[k] == 0));
+
+        let n = assigner.anchors.len() as i64;
+        tch::manual_seed(7);
+        let f = (Kind::Float, Device::Cpu);
+        let out = AnchorOutput {
+            cls: Tensor::randn([1, n, 2], f),
+            boxes: Tensor::randn([1, n, 7], f) * 0.1,
+            dir: Tensor::randn([1, n, 2], f),
+        };
+        let t_ign = assigner.collate(&[&ignored]);
+        let t_plain = assigner.collate(&[&plain]);
+        let l_ign = loss_values(&head, &out, &t_ign);
+        let l_plain = loss_values(&head, &out, &t_plain);
+        assert!(l_ign[1] < l_plain[1], "classification: {l_ign:?} vs {l_plain:?}");
+        assert_eq!(l_ign[2..], l_plain[2..], "same positives, same regression and direction");
+        assert!(l_ign[2] > 0.0);
+        // Predictions perturbed at the ignored anchors only.
+        let idx: Vec<i64> = on_car.iter().map(|&k| k as i64).collect();
+        let mut m = vec![0f32; n as usize];
+        for &k in &on_car {
+            m[k] = 1.0;
+        }
+        let mask = Tensor::from_slice(&m).view([1, n, 1]);
+        let noisy = AnchorOutput {
+            cls: &out.cls + &mask * Tensor::randn([1, n, 2], f) * 4.0,
+            boxes: &out.boxes + &mask * Tensor::randn([1, n, 7], f),
+            dir: &out.dir + &mask * Tensor::randn([1, n, 2], f) * 4.0,
+        };
+        let changed = (noisy.cls.get(0).index_select(0, &Tensor::from_slice(&idx))
+            - out.cls.get(0).index_select(0, &Tensor::from_slice(&idx)))
+        .abs()
+        .sum(Kind::Float)
+        .double_value(&[]);
+        assert!(changed > 1.0);
+        assert_eq!(loss_values(&head, &noisy, &t_ign), l_ign, "ignored anchors changed the loss");
+        assert_ne!(loss_values(&head, &noisy, &t_plain)[1], l_plain[1], "background anchors do count");
+    }
 }

@@ -110,8 +110,14 @@ impl TargetAssigner for CenterAssigner {
     type Frame = CenterTargets;
     type Batch = CenterBatchTargets;
 
-    fn assign(&self, boxes: &[Box3d], classes: &[usize]) -> CenterTargets {
-        center::assign(&self.cfg, &self.map, self.num_classes, boxes, classes)
+    fn assign(
+        &self,
+        boxes: &[Box3d],
+        classes: &[usize],
+        ignored: &[Box3d],
+        ignored_classes: &[usize],
+    ) -> CenterTargets {
+        center::assign(&self.cfg, &self.map, self.num_classes, boxes, classes, ignored, ignored_classes)
     }
 
     fn collate(&self, frames: &[&CenterTargets]) -> CenterBatchTargets {
@@ -120,16 +126,27 @@ impl TargetAssigner for CenterAssigner {
         let c = self.num_classes as i64;
         let mut hm = Vec::with_capacity((b * c * h * w) as usize);
         let (mut idx, mut codes) = (Vec::new(), Vec::new());
+        // A batch mask only when some frame ignores cells (frames without one count everywhere).
+        let any_mask = frames.iter().any(|t| !t.mask.is_empty());
+        let mut mask = Vec::with_capacity(if any_mask { hm.capacity() } else { 0 });
         for (k, t) in frames.iter().enumerate() {
             hm.extend_from_slice(&t.heatmap);
             idx.extend(t.index.iter().map(|&i| i + k as i64 * h * w));
             codes.extend_from_slice(&t.codes);
+            if any_mask {
+                if t.mask.is_empty() {
+                    mask.extend(std::iter::repeat_n(1f32, t.heatmap.len()));
+                } else {
+                    mask.extend_from_slice(&t.mask);
+                }
+            }
         }
         let kk = idx.len() as i64;
         CenterBatchTargets {
             heatmap: Tensor::from_slice(&hm).view([b, c, h, w]),
             index: Tensor::from_slice(&idx),
             codes: Tensor::from_slice(&codes).view([kk, CENTER_CODE_SIZE as i64]),
+            mask: any_mask.then(|| Tensor::from_slice(&mask).view([b, c, h, w])),
         }
     }
 }
@@ -147,11 +164,18 @@ pub struct CenterBatchTargets {
     /// `[K]` flat `b·H·W + cell` of the boxes and their codes `[K, 8]`.
     pub index: Tensor,
     pub codes: Tensor,
+    /// `[B, classes, H, W]` 1 where the heatmap loss counts, 0 on ignored boxes; `None`: all count.
+    pub mask: Option<Tensor>,
 }
 
 impl ToDevice for CenterBatchTargets {
     fn to_device(&self, d: Device) -> Self {
-        Self { heatmap: self.heatmap.to_device(d), index: self.index.to_device(d), codes: self.codes.to_device(d) }
+        Self {
+            heatmap: self.heatmap.to_device(d),
+            index: self.index.to_device(d),
+            codes: self.codes.to_device(d),
+            mask: self.mask.as_ref().map(|m| m.to_device(d)),
+        }
     }
 }
 
@@ -197,7 +221,10 @@ impl CenterHead {
     /// Returns `(total, [heatmap, loc])`, weighted; the heatmap loss is normalised by the number
     /// of boxes in the batch, the regression loss by the number of boxes.
     pub fn loss(&self, out: &CenterOutput, t: &CenterBatchTargets) -> (Tensor, [Tensor; 2]) {
-        let hm = losses::center_focal_loss(&out.heatmap, &t.heatmap) * self.cfg.cls_weight;
+        let hm = match &t.mask {
+            Some(m) => losses::center_focal_loss_masked(&out.heatmap, &t.heatmap, m),
+            None => losses::center_focal_loss(&out.heatmap, &t.heatmap),
+        } * self.cfg.cls_weight;
         let k = t.index.size()[0];
         let loc = if k > 0 {
             let (b, c, h, w) = out.codes.size4().expect("codes are [B, 8, H, W]");
@@ -241,5 +268,99 @@ impl CenterHead {
         let heading = col(7).atan2(&col(6)) / self.cfg.targets.heading.factor();
         let boxes = Tensor::stack(&[x, y, col(2), size(3), size(4), size(5), heading], 1);
         (boxes.to_device(Device::Cpu), scores.to_device(Device::Cpu), labels.to_device(Device::Cpu))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hm_loss(head: &CenterHead, heatmap: &Tensor, codes: &Tensor, t: &CenterBatchTargets) -> [f64; 2] {
+        let (_, [hm, loc]) =
+            head.loss(&CenterOutput { heatmap: heatmap.shallow_clone(), codes: codes.shallow_clone() }, t);
+        [hm.double_value(&[]), loc.double_value(&[])]
+    }
+
+    /// An ignored car masks the car-class cells of its Gaussian footprint (and nothing of the
+    /// pedestrian class): the heatmap loss there is gone, predictions there change nothing, and
+    /// the normalisation (real positives) and the regression targets are those without it.
+    #[test]
+    fn ignored_cells_add_nothing_to_the_heatmap_loss() {
+        let map = CenterMap { h: 12, w: 12, cell: [0.8, 0.8], origin: [-4.8, -4.8] };
+        let cfg = CenterHeadConfig::default();
+        let assigner = cfg.assigner(&map, 2);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let head = cfg.init(vs.root(), 8, 2, &crate::BatchNorm::default(), &map);
+        let ped = [Box3d::new(-3.0, 2.9, 0.85, 0.7, 0.6, 1.7, 1.2)];
+        let car = [Box3d::new(0.5, -1.3, 0.8, 4.3, 1.9, 1.6, 0.7)];
+        let ign = assigner.assign(&ped, &[1], &car, &[0]);
+        let plain = assigner.assign(&ped, &[1], &[], &[]);
+        let as_ped = assigner.assign(&ped, &[1], &car, &[1]);
+        assert!(plain.mask.is_empty(), "no mask without ignored boxes");
+        assert_eq!((&ign.heatmap, &ign.index, &ign.codes), (&plain.heatmap, &plain.index, &plain.codes));
+        let plane = map.h * map.w;
+        // The footprint: a (2r + 1)² square about the car's cell, in the car plane only.
+        let (ix, iy) = (((0.5 + 4.8) / 0.8) as usize, ((-1.3 + 4.8) / 0.8) as usize);
+        let r = (gaussian_radius_cells(&cfg, &map, &car[0])) as usize;
+        let masked: Vec<usize> = (0..2 * plane).filter(|&i| ign.mask[i] == 0.0).collect();
+        assert_eq!(masked.len(), (2 * r + 1) * (2 * r + 1));
+        for &i in &masked {
+            let (y, x) = ((i % plane) / map.w, i % map.w);
+            assert!(i < plane && x.abs_diff(ix) <= r && y.abs_diff(iy) <= r, "cell {i}");
+        }
+        // As a pedestrian, the same box masks the pedestrian plane instead.
+        let ped_masked: Vec<usize> = (0..2 * plane).filter(|&i| as_ped.mask[i] == 0.0).collect();
+        assert_eq!(ped_masked, masked.iter().map(|i| i + plane).collect::<Vec<_>>());
+
+        tch::manual_seed(5);
+        let f = (Kind::Float, Device::Cpu);
+        let hm = Tensor::randn([1, 2, 12, 12], f);
+        let codes = Tensor::randn([1, 8, 12, 12], f) * 0.1;
+        let t_ign = assigner.collate(&[&ign]);
+        let t_plain = assigner.collate(&[&plain]);
+        let t_ped = assigner.collate(&[&as_ped]);
+        assert!(t_ign.mask.is_some() && t_plain.mask.is_none());
+        let l_ign = hm_loss(&head, &hm, &codes, &t_ign);
+        let l_plain = hm_loss(&head, &hm, &codes, &t_plain);
+        assert!(l_ign[0] < l_plain[0], "{l_ign:?} vs {l_plain:?}");
+        assert_eq!(l_ign[1], l_plain[1]);
+        // By hand: the plain loss minus the masked cells' negative terms, same normaliser (1).
+        let p: Vec<f32> = Vec::try_from(hm.sigmoid().clamp(1e-4, 1.0 - 1e-4).view([-1])).unwrap();
+        let dropped: f64 = masked
+            .iter()
+            .map(|&i| {
+                let (p, t) = (p[i] as f64, plain.heatmap[i] as f64);
+                -(1.0 - p).ln() * p * p * (1.0 - t).powi(4)
+            })
+            .sum();
+        assert!(dropped > 0.1);
+        assert!(
+            (l_plain[0] - dropped - l_ign[0]).abs() < 1e-5 * l_plain[0],
+            "{} vs {}",
+            l_plain[0] - dropped,
+            l_ign[0]
+        );
+        // Heatmap logits perturbed on the masked cells only.
+        let mut m = vec![0f32; 2 * plane];
+        for &i in &masked {
+            m[i] = 1.0;
+        }
+        let noisy = &hm + Tensor::from_slice(&m).view([1, 2, 12, 12]) * Tensor::randn([1, 2, 12, 12], f) * 4.0;
+        assert_eq!(hm_loss(&head, &noisy, &codes, &t_ign), l_ign, "ignored cells changed the loss");
+        assert_ne!(hm_loss(&head, &noisy, &codes, &t_plain)[0], l_plain[0]);
+        assert_ne!(
+            hm_loss(&head, &noisy, &codes, &t_ped)[0],
+            hm_loss(&head, &hm, &codes, &t_ped)[0],
+            "a pedestrian-class box does not mask car cells"
+        );
+        // A batch mixing both frames: the plain frame counts everywhere.
+        let both = assigner.collate(&[&ign, &plain]);
+        let m = both.mask.as_ref().unwrap();
+        assert_eq!(m.get(1).sum(Kind::Float).double_value(&[]), (2 * plane) as f64);
+    }
+
+    fn gaussian_radius_cells(cfg: &CenterHeadConfig, map: &CenterMap, b: &Box3d) -> f64 {
+        let r = center::gaussian_radius(b.dx / map.cell[0], b.dy / map.cell[1], cfg.targets.gaussian_overlap);
+        r.max(0.0).floor().max(cfg.targets.min_radius as f64)
     }
 }

@@ -51,7 +51,10 @@ pub trait DenseHead {
 pub trait TargetAssigner: Send + Sync {
     type Frame: Send + 'static;
     type Batch: ToDevice + Send + 'static;
-    fn assign(&self, boxes: &[Box3d], classes: &[usize]) -> Self::Frame;
+    /// Targets of `boxes` (class `classes[k]` each). Outputs of class `k` on an `ignored` box of
+    /// class `k` (`ignored_classes`) count in no loss, unless they are positives of a box; they
+    /// stay background for the other classes.
+    fn assign(&self, boxes: &[Box3d], classes: &[usize], ignored: &[Box3d], ignored_classes: &[usize]) -> Self::Frame;
     fn collate(&self, frames: &[&Self::Frame]) -> Self::Batch;
 }
 
@@ -124,13 +127,13 @@ impl<H: DenseHead> AnyDenseHead for H {
 
 /// Object-safe form of [`TargetAssigner`].
 pub trait AnyAssigner: Send + Sync {
-    fn assign(&self, boxes: &[Box3d], classes: &[usize]) -> FrameTargets;
+    fn assign(&self, boxes: &[Box3d], classes: &[usize], ignored: &[Box3d], ignored_classes: &[usize]) -> FrameTargets;
     fn collate(&self, frames: &[&FrameTargets]) -> Result<BatchTargets>;
 }
 
 impl<A: TargetAssigner> AnyAssigner for A {
-    fn assign(&self, boxes: &[Box3d], classes: &[usize]) -> FrameTargets {
-        FrameTargets(Box::new(TargetAssigner::assign(self, boxes, classes)))
+    fn assign(&self, boxes: &[Box3d], classes: &[usize], ignored: &[Box3d], ignored_classes: &[usize]) -> FrameTargets {
+        FrameTargets(Box::new(TargetAssigner::assign(self, boxes, classes, ignored, ignored_classes)))
     }
     fn collate(&self, frames: &[&FrameTargets]) -> Result<BatchTargets> {
         let typed: Vec<&A::Frame> = frames

@@ -47,7 +47,8 @@ pub trait SecondStage {
     fn proposal_config(&self) -> &ProposalConfig;
     /// Width `F` of [`RoiOutput::features`].
     fn feature_channels(&self) -> i64;
-    /// Training RoIs and their targets from each frame's proposals and ground truth.
+    /// Training RoIs and their targets from each frame's proposals and ground truth; RoIs on a
+    /// frame's ignored boxes ([`FrameGt::ignored`]) are not sampled.
     fn sample(&self, proposals: &[Proposals], gt: &[FrameGt], rng: &mut ChaCha8Rng) -> Result<RoiBatchTargets>;
     /// `bev [B, C, H, W]`, `rois [B, N, 7]` → per-RoI features, score logits and box codes.
     fn forward_t(&self, bev: &Tensor, rois: &Tensor, map: &CenterMap, train: bool) -> Result<RoiOutput>;
@@ -70,7 +71,7 @@ impl SecondStage for RoiHead {
         let frames = proposals
             .iter()
             .zip(gt)
-            .map(|(p, g)| self.cfg.sampler.sample(p, &g.boxes, &g.classes, rng))
+            .map(|(p, g)| self.cfg.sampler.sample(p, &g.boxes, &g.classes, &g.ignored, &g.ignored_classes, rng))
             .collect::<Result<Vec<_>>>()?;
         RoiBatchTargets::collate(&frames)
     }

@@ -452,6 +452,43 @@ mod tests {
         cov / (va * vb).sqrt()
     }
 
+    /// The detector's entry point passes each frame's ignored boxes to the sampler.
+    #[test]
+    fn second_stage_sampling_sees_the_ignored_boxes() {
+        use crate::data_loader::FrameGt;
+        use crate::roi_heads::SecondStage;
+        let vs = nn::VarStore::new(Device::Cpu);
+        let cfg = RoiHeadConfig {
+            point_channels: 8,
+            shared_fc: vec![16],
+            cls_fc: vec![8],
+            reg_fc: vec![8],
+            sampler: RoiSamplerConfig { roi_per_image: 32, ..Default::default() },
+            ..Default::default()
+        };
+        let head = cfg.init(&vs.root() / "roi_head", 8, &BatchNorm { eps: 1e-3, momentum: 0.1 }).unwrap();
+        let gt = [Box3d::new(3.0, 3.2, 0.8, 3.9, 1.8, 1.5, 0.3), Box3d::new(9.4, 6.5, 0.8, 3.6, 1.7, 1.5, -1.9)];
+        let (p, owner) = proposals(&gt, 12, 6, &mut ChaCha8Rng::seed_from_u64(1));
+        // The second car is only a middling pseudo-label: ignored.
+        let frame = FrameGt {
+            boxes: gt[..1].to_vec(),
+            classes: vec![0],
+            ignored: gt[1..].to_vec(),
+            ignored_classes: vec![0],
+            ..Default::default()
+        };
+        let t = head.sample(std::slice::from_ref(&p), &[frame], &mut ChaCha8Rng::seed_from_u64(2)).unwrap();
+        let direct = cfg.sampler.sample(&p, &gt[..1], &[0], &gt[1..], &[0], &mut ChaCha8Rng::seed_from_u64(2)).unwrap();
+        let want = RoiBatchTargets::collate(std::slice::from_ref(&direct)).unwrap();
+        assert!(t.rois.equal(&want.rois) && t.iou_targets.equal(&want.iou_targets));
+        let on_ignored = |k: i64| {
+            let k = k as usize;
+            k < owner.len() && owner[k] == 1 && iou_3d(&p.boxes[k], &gt[1]) >= cfg.sampler.ignore_thresh()
+        };
+        assert!((0..p.len() as i64).any(on_ignored));
+        assert!(!direct.source.iter().any(|&k| on_ignored(k)));
+    }
+
     #[test]
     fn overfits_two_boxes() {
         // Tiny tensors: on a busy two-core machine, libtorch's thread hand-offs cost far more
@@ -486,7 +523,7 @@ mod tests {
         let mut last = 0.0;
         for _ in 0..200 {
             let ts = std::time::Instant::now();
-            let s = cfg.sampler.sample(&pool, &gt, &classes, &mut rng).unwrap();
+            let s = cfg.sampler.sample(&pool, &gt, &classes, &[], &[], &mut rng).unwrap();
             let t = RoiBatchTargets::collate(&[s]).unwrap();
             t_sample += ts.elapsed().as_secs_f64();
             let out = head.forward_t(&bev, &t.rois, &map, true).unwrap();
@@ -559,8 +596,8 @@ mod tests {
             let mut rng = ChaCha8Rng::seed_from_u64(4);
             let (p, _) = proposals(&gt, 10, 4, &mut rng);
             let frames = [
-                cfg.sampler.sample(&p, &gt, &[0], &mut rng).unwrap(),
-                cfg.sampler.sample(&Proposals::default(), &[], &[], &mut rng).unwrap(),
+                cfg.sampler.sample(&p, &gt, &[0], &[], &[], &mut rng).unwrap(),
+                cfg.sampler.sample(&Proposals::default(), &[], &[], &[], &[], &mut rng).unwrap(),
             ];
             let t = RoiBatchTargets::collate(&frames).unwrap();
             let out = head.forward_t(&bev, &t.rois, &map, true).unwrap();
@@ -677,7 +714,7 @@ mod tests {
             let vs = nn::VarStore::new(Device::Cpu);
             let head = cfg.init(vs.root(), 192, &BatchNorm::default()).unwrap();
             let bev = Tensor::randn([1, 192, 128, 128], (Kind::Float, Device::Cpu)).set_requires_grad(true);
-            let s = cfg.sampler.sample(&p, &gt, &classes, &mut rng).unwrap();
+            let s = cfg.sampler.sample(&p, &gt, &classes, &[], &[], &mut rng).unwrap();
             let t = RoiBatchTargets::collate(&[s]).unwrap();
             let mut times = Vec::new();
             for k in 0..15 {

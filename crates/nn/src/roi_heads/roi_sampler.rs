@@ -12,7 +12,12 @@
 //!   background with replacement, `hard_bg_ratio` of it hard (when there are both kinds); only
 //!   foreground (drawn with replacement) when there is no background;
 //! - targets: regression where IoU > `reg_fg_thresh`; IoU-guided score
-//!   `clip((IoU − cls_bg_thresh)/(cls_fg_thresh − cls_bg_thresh), 0, 1)`.
+//!   `clip((IoU − cls_bg_thresh)/(cls_fg_thresh − cls_bg_thresh), 0, 1)`;
+//! - ignored boxes (self-training pseudo-labels of middling score): a candidate that is not
+//!   foreground and whose IoU with an ignored box, matched like GT (same class when
+//!   `class_aware`), reaches [`RoiSamplerConfig::ignore_thresh`] (it would not be background if
+//!   that box were GT) is neither foreground nor background: it is never sampled. Ignored boxes
+//!   are not added to the candidates.
 //!
 //! Deterministic for a given [`ChaCha8Rng`] state. Runs in Rust on the CPU ([`RoiSamplerConfig::sample`]
 //! per frame, [`RoiBatchTargets::collate`] into tensors).
@@ -143,6 +148,12 @@ impl RoiSamplerConfig {
         self.reg_fg_thresh.min(self.cls_fg_thresh)
     }
 
+    /// IoU with an ignored box from which a candidate is left out: the top of hard background
+    /// (`reg_fg_thresh`), the IoU from which a RoI is no longer background.
+    pub fn ignore_thresh(&self) -> f64 {
+        self.reg_fg_thresh
+    }
+
     /// The IoU-guided score target of an IoU.
     pub fn iou_target(&self, iou: f64) -> f32 {
         ((iou - self.cls_bg_thresh) / (self.cls_fg_thresh - self.cls_bg_thresh)).clamp(0.0, 1.0) as f32
@@ -183,16 +194,27 @@ impl RoiSamplerConfig {
     }
 
     /// Samples `roi_per_image` RoIs of one frame from its proposals and GT (`gt_classes[k]` the
-    /// class index of `gt[k]`). Errors when `gt` and `gt_classes` differ in length.
+    /// class index of `gt[k]`), leaving out the candidates on `ignored` boxes (classes
+    /// `ignored_classes`; see the module docs). Errors when a box list and its class list differ
+    /// in length.
     pub fn sample(
         &self,
         proposals: &Proposals,
         gt: &[Box3d],
         gt_classes: &[usize],
+        ignored: &[Box3d],
+        ignored_classes: &[usize],
         rng: &mut ChaCha8Rng,
     ) -> Result<FrameSample> {
         if gt.len() != gt_classes.len() {
             return Err(NnError::Input(format!("roi sampler: {} GT boxes, {} classes", gt.len(), gt_classes.len())));
+        }
+        if ignored.len() != ignored_classes.len() {
+            return Err(NnError::Input(format!(
+                "roi sampler: {} ignored boxes, {} classes",
+                ignored.len(),
+                ignored_classes.len()
+            )));
         }
         let mut cands = proposals.boxes.clone();
         let mut scores = proposals.scores.clone();
@@ -213,10 +235,17 @@ impl RoiSamplerConfig {
                 }
             }
         }
-        let usable: Vec<usize> = (0..cands.len()).filter(|&k| scores[k] > f64::NEG_INFINITY).collect();
         let (ious, gt_of) = self.match_candidates(&cands, &labels, gt, gt_classes);
-
         let fg_thresh = self.fg_thresh();
+        let on_ignored = if ignored.is_empty() {
+            vec![false; cands.len()]
+        } else {
+            let (ign, _) = self.match_candidates(&cands, &labels, ignored, ignored_classes);
+            (0..cands.len()).map(|k| ious[k] < fg_thresh && ign[k] >= self.ignore_thresh()).collect()
+        };
+        let usable: Vec<usize> =
+            (0..cands.len()).filter(|&k| scores[k] > f64::NEG_INFINITY && !on_ignored[k]).collect();
+
         let fg: Vec<usize> = usable.iter().copied().filter(|&k| ious[k] >= fg_thresh).collect();
         let easy: Vec<usize> = usable.iter().copied().filter(|&k| ious[k] < self.cls_bg_thresh_lo).collect();
         let hard: Vec<usize> = usable
@@ -532,7 +561,7 @@ mod tests {
         {
             let cfg = RoiSamplerConfig { add_gt_to_proposals: add_gt, class_aware, ..cfg.clone() };
             let (p, gt, classes) = scene(&mut rng, proposals);
-            let s = cfg.sample(&p, &gt, &classes, &mut rng).unwrap();
+            let s = cfg.sample(&p, &gt, &classes, &[], &[], &mut rng).unwrap();
             check_frame(&cfg, &p, &gt, &classes, &s);
             if add_gt {
                 assert!(s.count(RoiCategory::Foreground) > 0);
@@ -542,10 +571,10 @@ mod tests {
         let (p, gt, classes) = scene(&mut rng, 300);
         let only_fg = Proposals { boxes: gt.clone(), scores: vec![0.5; 4], labels: classes.clone() };
         let cfg = RoiSamplerConfig { roi_per_image: 16, ..cfg };
-        let s = cfg.sample(&only_fg, &gt, &classes, &mut rng).unwrap();
+        let s = cfg.sample(&only_fg, &gt, &classes, &[], &[], &mut rng).unwrap();
         check_frame(&cfg, &only_fg, &gt, &classes, &s);
         assert_eq!(s.count(RoiCategory::Foreground), 16);
-        let s = cfg.sample(&p, &[], &[], &mut rng).unwrap();
+        let s = cfg.sample(&p, &[], &[], &[], &[], &mut rng).unwrap();
         check_frame(&cfg, &p, &[], &[], &s);
         assert_eq!(s.count(RoiCategory::EasyBackground), 16, "no GT: everything is easy background");
         assert!(s.gt_index.iter().all(|&g| g == -1) && s.reg_valid.iter().all(|&v| !v));
@@ -556,27 +585,77 @@ mod tests {
         let cfg = RoiSamplerConfig { roi_per_image: 8, ..Default::default() };
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         // Nothing at all: padding rows only.
-        let s = cfg.sample(&Proposals::default(), &[], &[], &mut rng).unwrap();
+        let s = cfg.sample(&Proposals::default(), &[], &[], &[], &[], &mut rng).unwrap();
         assert_eq!(s.count(RoiCategory::Padding), 8);
         check_frame(&cfg, &Proposals::default(), &[], &[], &s);
         // No proposals but GT: the GT themselves are the foreground.
         let gt = [Box3d::new(0.0, 0.0, 0.0, 4.0, 2.0, 1.5, 0.0)];
-        let s = cfg.sample(&Proposals::default(), &gt, &[0], &mut rng).unwrap();
+        let s = cfg.sample(&Proposals::default(), &gt, &[0], &[], &[], &mut rng).unwrap();
         assert_eq!(s.count(RoiCategory::Foreground), 8);
         assert!(s.ious.iter().all(|&v| (v - 1.0).abs() < 1e-9));
         assert!(s.iou_targets.iter().all(|&v| v == 1.0));
         // A degenerate GT is neither a candidate nor a match.
         let bad = [Box3d::new(0.0, 0.0, 0.0, 0.0, 2.0, 1.5, 0.0)];
-        let s = cfg.sample(&Proposals::default(), &bad, &[0], &mut rng).unwrap();
+        let s = cfg.sample(&Proposals::default(), &bad, &[0], &[], &[], &mut rng).unwrap();
         assert_eq!(s.count(RoiCategory::Padding), 8);
-        assert!(cfg.sample(&Proposals::default(), &gt, &[], &mut rng).is_err());
+        assert!(cfg.sample(&Proposals::default(), &gt, &[], &[], &[], &mut rng).is_err());
         // Same seed, same sample.
         let (p, gt, classes) = scene(&mut ChaCha8Rng::seed_from_u64(5), 200);
-        let a = cfg.sample(&p, &gt, &classes, &mut ChaCha8Rng::seed_from_u64(9)).unwrap();
-        let b = cfg.sample(&p, &gt, &classes, &mut ChaCha8Rng::seed_from_u64(9)).unwrap();
+        let a = cfg.sample(&p, &gt, &classes, &[], &[], &mut ChaCha8Rng::seed_from_u64(9)).unwrap();
+        let b = cfg.sample(&p, &gt, &classes, &[], &[], &mut ChaCha8Rng::seed_from_u64(9)).unwrap();
         assert_eq!(a, b);
-        let c = cfg.sample(&p, &gt, &classes, &mut ChaCha8Rng::seed_from_u64(10)).unwrap();
+        let c = cfg.sample(&p, &gt, &classes, &[], &[], &mut ChaCha8Rng::seed_from_u64(10)).unwrap();
         assert_ne!(a.source, c.source);
+    }
+
+    /// Proposals on an ignored car (labelled car) are never sampled; labelled pedestrian they
+    /// are background as before; proposals that are foreground for a real car stay foreground
+    /// even on an ignored box.
+    #[test]
+    fn proposals_on_ignored_boxes_are_not_sampled() {
+        let cfg = RoiSamplerConfig { roi_per_image: 64, ..Default::default() };
+        let gt = [Box3d::new(5.0, 2.0, 0.8, 4.2, 1.9, 1.6, 0.3)];
+        let far_car = Box3d::new(15.0, -4.0, 0.8, 4.0, 1.8, 1.5, -0.4);
+        // The far car, and a copy of the real car (a duplicate pseudo-label).
+        let ignored = [far_car, Box3d { x: 5.1, ..gt[0] }];
+        let mut p = Proposals::default();
+        let offsets = [-0.3, -0.15, 0.0, 0.15, 0.3];
+        for (label, b) in [(0, far_car), (1, far_car), (0, gt[0])] {
+            for dx in offsets {
+                p.boxes.push(Box3d { x: b.x + dx, y: b.y - 0.5 * dx, ..b });
+                p.scores.push(0.5);
+                p.labels.push(label);
+            }
+        }
+        for k in 0..5 {
+            p.boxes.push(Box3d::new(-20.0 + 3.0 * k as f64, 10.0, 0.8, 4.0, 1.8, 1.5, 0.0));
+            p.scores.push(0.2);
+            p.labels.push(0);
+        }
+        let excluded: Vec<i64> = (0..5).collect();
+        for k in 0..5 {
+            assert!(iou_3d(&p.boxes[k], &far_car) >= cfg.ignore_thresh());
+            assert!(iou_3d(&p.boxes[10 + k], &ignored[1]) >= cfg.ignore_thresh());
+        }
+        let plain = cfg.sample(&p, &gt, &[0], &[], &[], &mut ChaCha8Rng::seed_from_u64(4)).unwrap();
+        check_frame(&cfg, &p, &gt, &[0], &plain);
+        assert!(plain.source.iter().any(|s| excluded.contains(s)), "sampled as background without the band");
+        let s = cfg.sample(&p, &gt, &[0], &ignored, &[0, 0], &mut ChaCha8Rng::seed_from_u64(4)).unwrap();
+        assert!(!s.source.iter().any(|s| excluded.contains(s)), "{:?}", s.source);
+        assert_eq!(s.count(RoiCategory::Foreground), plain.count(RoiCategory::Foreground));
+        assert!(s.source.iter().any(|&k| (5..10).contains(&k)), "a pedestrian label on an ignored car is background");
+        for k in 0..s.len() {
+            if (5..10).contains(&s.source[k]) {
+                assert_eq!(s.category[k], RoiCategory::EasyBackground);
+            }
+        }
+        // Every proposal ignored: nothing but the GT itself is left.
+        let only = Proposals { boxes: p.boxes[..5].to_vec(), scores: vec![0.5; 5], labels: vec![0; 5] };
+        let s = cfg.sample(&only, &gt, &[0], &ignored[..1], &[0], &mut ChaCha8Rng::seed_from_u64(4)).unwrap();
+        assert!(s.source.iter().all(|&k| k == 5), "{:?}", s.source);
+        let none = cfg.sample(&only, &[], &[], &ignored[..1], &[0], &mut ChaCha8Rng::seed_from_u64(4)).unwrap();
+        assert_eq!(none.count(RoiCategory::Padding), 64);
+        assert!(cfg.sample(&only, &gt, &[0], &ignored, &[0], &mut ChaCha8Rng::seed_from_u64(4)).is_err());
     }
 
     #[test]
@@ -584,8 +663,8 @@ mod tests {
         let cfg = RoiSamplerConfig { roi_per_image: 32, ..Default::default() };
         let mut rng = ChaCha8Rng::seed_from_u64(2);
         let (p, gt, classes) = scene(&mut rng, 100);
-        let a = cfg.sample(&p, &gt, &classes, &mut rng).unwrap();
-        let b = cfg.sample(&Proposals::default(), &[], &[], &mut rng).unwrap();
+        let a = cfg.sample(&p, &gt, &classes, &[], &[], &mut rng).unwrap();
+        let b = cfg.sample(&Proposals::default(), &[], &[], &[], &[], &mut rng).unwrap();
         let t = RoiBatchTargets::collate(&[a.clone(), b]).unwrap();
         assert_eq!(t.rois.size(), [2, 32, 7]);
         assert_eq!(t.reg_targets.size(), [2, 32, 7]);
@@ -603,7 +682,7 @@ mod tests {
         assert!(cls.iter().all(|&v| v == 0.0));
         let short = cfg.clone();
         let short = RoiSamplerConfig { roi_per_image: 4, ..short };
-        let c = short.sample(&p, &gt, &classes, &mut rng).unwrap();
+        let c = short.sample(&p, &gt, &classes, &[], &[], &mut rng).unwrap();
         assert!(RoiBatchTargets::collate(&[a, c]).is_err());
         assert!(RoiBatchTargets::collate(&[]).is_err());
     }

@@ -54,9 +54,55 @@ pub fn dir_bin(heading: f64) -> i64 {
     ((r / period).floor() as i64).clamp(0, NUM_DIR_BINS as i64 - 1)
 }
 
+/// Calls `f(anchor, iou)` for every anchor of class `cls` whose nearest-BEV rectangle overlaps
+/// `b`'s (IoU > 0), visiting only the cells near the box.
+fn for_each_overlap(anchors: &Anchors, b: &Box3d, cls: usize, mut f: impl FnMut(usize, f64)) {
+    let a = anchors.per_location;
+    let rect = nearest_bev_rect(b);
+    for slot in 0..a {
+        if anchors.slot_class[slot] != cls {
+            continue;
+        }
+        // Anchor extent (all anchors of a slot share it).
+        let proto = &anchors.boxes[slot];
+        let pr = nearest_bev_rect(&Box3d { x: 0.0, y: 0.0, ..*proto });
+        // Cells whose anchor rectangle can overlap the box rectangle.
+        let x_lo = ((rect[0] - pr[2] - anchors.origin[0]) / anchors.cell[0] - 0.5).floor().max(0.0) as usize;
+        let x_hi = ((rect[2] - pr[0] - anchors.origin[0]) / anchors.cell[0] - 0.5).ceil();
+        let y_lo = ((rect[1] - pr[3] - anchors.origin[1]) / anchors.cell[1] - 0.5).floor().max(0.0) as usize;
+        let y_hi = ((rect[3] - pr[1] - anchors.origin[1]) / anchors.cell[1] - 0.5).ceil();
+        if x_hi < 0.0 || y_hi < 0.0 || !x_hi.is_finite() || !y_hi.is_finite() {
+            continue;
+        }
+        let x_hi = (x_hi as usize).min(anchors.w.saturating_sub(1));
+        let y_hi = (y_hi as usize).min(anchors.h.saturating_sub(1));
+        for iy in y_lo..=y_hi {
+            for ix in x_lo..=x_hi {
+                let k = (iy * anchors.w + ix) * a + slot;
+                let ab = &anchors.boxes[k];
+                let ar = [pr[0] + ab.x, pr[1] + ab.y, pr[2] + ab.x, pr[3] + ab.y];
+                let iou = rect_iou(&ar, &rect);
+                if iou > 0.0 {
+                    f(k, iou);
+                }
+            }
+        }
+    }
+}
+
 /// Assigns `gt` boxes (with class indices `gt_class`) to `anchors`. `classes[k]` holds the anchor
-/// config of class `k` (its thresholds).
-pub fn assign(anchors: &Anchors, classes: &[AnchorClassConfig], gt: &[Box3d], gt_class: &[usize]) -> AnchorTargets {
+/// config of class `k` (its thresholds). An anchor of class `k` that is not positive and whose IoU
+/// with an `ignored` box of class `k` (`ignored_class`) reaches `k`'s unmatched threshold is
+/// ignored (−1), exactly as if that box were a GT box it does not match well enough; ignored
+/// boxes never make positives, and anchors of other classes do not see them.
+pub fn assign(
+    anchors: &Anchors,
+    classes: &[AnchorClassConfig],
+    gt: &[Box3d],
+    gt_class: &[usize],
+    ignored: &[Box3d],
+    ignored_class: &[usize],
+) -> AnchorTargets {
     let n = anchors.len();
     let a = anchors.per_location;
     let mut labels = vec![0i64; n];
@@ -66,52 +112,24 @@ pub fn assign(anchors: &Anchors, classes: &[AnchorClassConfig], gt: &[Box3d], gt
     let mut touched: Vec<usize> = Vec::new();
     let mut forced: Vec<(usize, usize)> = Vec::new(); // (anchor, gt)
     for (g, (b, &cls)) in gt.iter().zip(gt_class).enumerate() {
-        let rect = nearest_bev_rect(b);
         let mut gt_best = 0f64;
         let mut gt_best_anchors: Vec<usize> = Vec::new();
-        for slot in 0..a {
-            if anchors.slot_class[slot] != cls {
-                continue;
+        for_each_overlap(anchors, b, cls, |k, iou| {
+            if best_gt[k] == u32::MAX {
+                touched.push(k);
             }
-            // Anchor extent (all anchors of a slot share it).
-            let proto = &anchors.boxes[slot];
-            let pr = nearest_bev_rect(&Box3d { x: 0.0, y: 0.0, ..*proto });
-            // Cells whose anchor rectangle can overlap the box rectangle.
-            let x_lo = ((rect[0] - pr[2] - anchors.origin[0]) / anchors.cell[0] - 0.5).floor().max(0.0) as usize;
-            let x_hi = ((rect[2] - pr[0] - anchors.origin[0]) / anchors.cell[0] - 0.5).ceil();
-            let y_lo = ((rect[1] - pr[3] - anchors.origin[1]) / anchors.cell[1] - 0.5).floor().max(0.0) as usize;
-            let y_hi = ((rect[3] - pr[1] - anchors.origin[1]) / anchors.cell[1] - 0.5).ceil();
-            if x_hi < 0.0 || y_hi < 0.0 || !x_hi.is_finite() || !y_hi.is_finite() {
-                continue;
+            if best_gt[k] == u32::MAX || iou > best_iou[k] {
+                best_iou[k] = iou;
+                best_gt[k] = g as u32;
             }
-            let x_hi = (x_hi as usize).min(anchors.w.saturating_sub(1));
-            let y_hi = (y_hi as usize).min(anchors.h.saturating_sub(1));
-            for iy in y_lo..=y_hi {
-                for ix in x_lo..=x_hi {
-                    let k = (iy * anchors.w + ix) * a + slot;
-                    let ab = &anchors.boxes[k];
-                    let ar = [pr[0] + ab.x, pr[1] + ab.y, pr[2] + ab.x, pr[3] + ab.y];
-                    let iou = rect_iou(&ar, &rect);
-                    if iou <= 0.0 {
-                        continue;
-                    }
-                    if best_gt[k] == u32::MAX {
-                        touched.push(k);
-                    }
-                    if best_gt[k] == u32::MAX || iou > best_iou[k] {
-                        best_iou[k] = iou;
-                        best_gt[k] = g as u32;
-                    }
-                    if iou > gt_best + 1e-12 {
-                        gt_best = iou;
-                        gt_best_anchors.clear();
-                        gt_best_anchors.push(k);
-                    } else if (iou - gt_best).abs() <= 1e-12 {
-                        gt_best_anchors.push(k);
-                    }
-                }
+            if iou > gt_best + 1e-12 {
+                gt_best = iou;
+                gt_best_anchors.clear();
+                gt_best_anchors.push(k);
+            } else if (iou - gt_best).abs() <= 1e-12 {
+                gt_best_anchors.push(k);
             }
-        }
+        });
         forced.extend(gt_best_anchors.into_iter().map(|k| (k, g)));
     }
     // Threshold rules on the touched anchors; untouched ones keep IoU 0 → background.
@@ -139,6 +157,15 @@ pub fn assign(anchors: &Anchors, classes: &[AnchorClassConfig], gt: &[Box3d], gt
         t.pos_index.push(k as i64);
         t.pos_codes.extend_from_slice(&ResidualCoder::encode(&gt[g], &anchors.boxes[k]));
         t.pos_dir.push(dir_bin(gt[g].heading));
+    }
+    // Ignored boxes last: they only turn background anchors of their class into ignored ones.
+    for (b, &cls) in ignored.iter().zip(ignored_class) {
+        let Some(cfg) = classes.get(cls) else { continue };
+        for_each_overlap(anchors, b, cls, |k, iou| {
+            if t.labels[k] == 0 && iou >= cfg.unmatched_threshold {
+                t.labels[k] = -1;
+            }
+        });
     }
     t
 }
@@ -223,7 +250,7 @@ mod tests {
             Box3d::new(40.0, 40.0, -0.1, 4.0, 2.0, 1.5, 0.0), // off the map
         ];
         let gc = vec![0, 0, 1, 1, 0];
-        let t = assign(&an, &cls, &gt, &gc);
+        let t = assign(&an, &cls, &gt, &gc, &[], &[]);
         assert_eq!(t.labels, brute(&an, &cls, &gt, &gc));
         assert!(!t.pos_index.is_empty());
         // Every box on the map got a positive anchor; each code decodes back to its box.
@@ -240,6 +267,56 @@ mod tests {
                 bev_iou(g, &ResidualCoder::decode(&code, &an.boxes[k as usize])) > 0.999
             }));
         }
+    }
+
+    /// Ignored boxes turn the background anchors of their own class with IoU ≥ the unmatched
+    /// threshold into −1 (brute force), leave positives and other classes alone, and add no
+    /// positive.
+    #[test]
+    fn ignored_boxes_ignore_background_anchors_of_their_class_only() {
+        let cls = classes();
+        let an = anchors();
+        let a = an.per_location;
+        let gt = vec![Box3d::new(7.0, 7.3, -0.2, 3.9, 2.0, 1.5, 1.5), Box3d::new(2.2, 8.1, -0.1, 0.7, 0.6, 1.8, 2.0)];
+        let gc = vec![0, 1];
+        // A car overlapping the real car, a car alone, a pedestrian alone.
+        let ign = vec![
+            Box3d::new(5.6, 6.0, -0.2, 4.3, 1.9, 1.5, 0.3),
+            Box3d::new(3.0, 2.5, -0.2, 4.1, 1.8, 1.5, -0.2),
+            Box3d::new(7.75, 1.25, -0.1, 0.7, 0.6, 1.8, 0.0),
+        ];
+        let ic = vec![0, 0, 1];
+        let base = assign(&an, &cls, &gt, &gc, &[], &[]);
+        let t = assign(&an, &cls, &gt, &gc, &ign, &ic);
+        let mut want = base.labels.clone();
+        for (k, l) in want.iter_mut().enumerate() {
+            let c = an.slot_class[k % a];
+            let hit = ign.iter().zip(&ic).any(|(b, &bc)| {
+                bc == c && rect_iou(&nearest_bev_rect(&an.boxes[k]), &nearest_bev_rect(b)) >= cls[c].unmatched_threshold
+            });
+            if *l == 0 && hit {
+                *l = -1;
+            }
+        }
+        assert_eq!(t.labels, want);
+        assert_eq!((&t.pos_index, &t.pos_codes, &t.pos_dir), (&base.pos_index, &base.pos_codes, &base.pos_dir));
+        let newly: Vec<usize> = (0..an.len()).filter(|&k| t.labels[k] == -1 && base.labels[k] != -1).collect();
+        for c in [0, 1] {
+            assert!(newly.iter().any(|&k| an.slot_class[k % a] == c), "class {c} got ignored anchors");
+        }
+        // Only the pedestrian ignored: no car anchor changes.
+        let t = assign(&an, &cls, &gt, &gc, &ign[2..], &ic[2..]);
+        for k in 0..an.len() {
+            if an.slot_class[k % a] == 0 {
+                assert_eq!(t.labels[k], base.labels[k], "a pedestrian box ignored car anchor {k}");
+            }
+        }
+        // The same box as a pedestrian and as a car: only its own class's anchors are ignored.
+        let as_ped = assign(&an, &cls, &[], &[], &ign[..1], &[1]);
+        let as_car = assign(&an, &cls, &[], &[], &ign[..1], &[0]);
+        assert!(as_car.labels.iter().enumerate().all(|(k, &l)| l == 0 || an.slot_class[k % a] == 0));
+        assert!(as_car.labels.contains(&-1) && as_car.pos_index.is_empty());
+        assert!(as_ped.labels.iter().enumerate().all(|(k, &l)| l == 0 || an.slot_class[k % a] == 1));
     }
 
     #[test]

@@ -76,6 +76,9 @@ pub struct CenterTargets {
     pub index: Vec<i64>,
     pub class: Vec<i64>,
     pub codes: Vec<f32>,
+    /// `[num_classes, h, w]` 1 where the heatmap loss counts, 0 on ignored boxes; empty when no
+    /// cell is ignored (the common case costs no second map).
+    pub mask: Vec<f32>,
 }
 
 /// CornerNet's radius for a box of `h × w` cells such that a corner displaced within it keeps IoU
@@ -122,13 +125,32 @@ pub fn draw_gaussian(map: &mut [f32], h: usize, w: usize, cx: usize, cy: usize, 
     }
 }
 
-/// Targets of one frame: `gt` boxes with class indices `gt_class` (`< num_classes`).
+/// Where a box lands on the map: its centre cell `(ix, iy)`, the centre in cells `(fx, fy)` and
+/// its Gaussian radius in cells; `None` off the map or for a box of no area.
+fn footprint(cfg: &CenterTargetConfig, map: &CenterMap, b: &Box3d) -> Option<(usize, usize, f64, f64, usize)> {
+    let fx = (b.x - map.origin[0]) / map.cell[0];
+    let fy = (b.y - map.origin[1]) / map.cell[1];
+    let on_map = fx >= 0.0 && fy >= 0.0 && fx < map.w as f64 && fy < map.h as f64;
+    if !(on_map && b.dx > 0.0 && b.dy > 0.0) {
+        return None;
+    }
+    let radius = gaussian_radius(b.dx / map.cell[0], b.dy / map.cell[1], cfg.gaussian_overlap);
+    let radius = (radius.max(0.0) as usize).max(cfg.min_radius);
+    Some((fx.floor() as usize, fy.floor() as usize, fx, fy, radius))
+}
+
+/// Targets of one frame: `gt` boxes with class indices `gt_class` (`< num_classes`). The cells of
+/// class `k` an `ignored` box of class `k` (`ignored_class`) would draw its Gaussian on (same
+/// radius rule) get mask 0, except the peaks of `gt` boxes: the focal loss neither pushes them
+/// up nor down. Ignored boxes make no peak and no regression target.
 pub fn assign(
     cfg: &CenterTargetConfig,
     map: &CenterMap,
     num_classes: usize,
     gt: &[Box3d],
     gt_class: &[usize],
+    ignored: &[Box3d],
+    ignored_class: &[usize],
 ) -> CenterTargets {
     let (h, w) = (map.h, map.w);
     let mut t = CenterTargets { heatmap: vec![0.0; num_classes * h * w], ..Default::default() };
@@ -136,14 +158,7 @@ pub fn assign(
         if t.index.len() >= cfg.max_objects || c >= num_classes {
             continue;
         }
-        let fx = (b.x - map.origin[0]) / map.cell[0];
-        let fy = (b.y - map.origin[1]) / map.cell[1];
-        if !(fx >= 0.0 && fy >= 0.0 && fx < w as f64 && fy < h as f64) || b.dx <= 0.0 || b.dy <= 0.0 {
-            continue;
-        }
-        let (ix, iy) = (fx.floor() as usize, fy.floor() as usize);
-        let radius = gaussian_radius(b.dx / map.cell[0], b.dy / map.cell[1], cfg.gaussian_overlap);
-        let radius = (radius.max(0.0) as usize).max(cfg.min_radius);
+        let Some((ix, iy, fx, fy, radius)) = footprint(cfg, map, b) else { continue };
         draw_gaussian(&mut t.heatmap[c * h * w..(c + 1) * h * w], h, w, ix, iy, radius);
         t.index.push((iy * w + ix) as i64);
         t.class.push(c as i64);
@@ -157,6 +172,25 @@ pub fn assign(
             cfg.heading.encode(b.heading)[0],
             cfg.heading.encode(b.heading)[1],
         ]);
+    }
+    for (b, &c) in ignored.iter().zip(ignored_class) {
+        if c >= num_classes {
+            continue;
+        }
+        let Some((ix, iy, _, _, radius)) = footprint(cfg, map, b) else { continue };
+        if t.mask.is_empty() {
+            t.mask = vec![1.0; num_classes * h * w];
+        }
+        let plane = c * h * w;
+        // The cells draw_gaussian would touch (the corners' values are far above its ε cut).
+        for y in iy.saturating_sub(radius)..=(iy + radius).min(h - 1) {
+            for x in ix.saturating_sub(radius)..=(ix + radius).min(w - 1) {
+                let cell = plane + y * w + x;
+                if t.heatmap[cell] < 1.0 {
+                    t.mask[cell] = 0.0;
+                }
+            }
+        }
     }
     t
 }
@@ -196,7 +230,7 @@ mod tests {
             Box3d::new(-4.9, -4.9, -1.0, 0.7, 0.6, 1.8, 0.0), // corner: Gaussian clipped
             Box3d::new(50.0, 0.0, -1.0, 4.0, 2.0, 1.5, 0.0),  // off the map
         ];
-        let t = assign(&cfg, &map, 2, &gt, &[0, 1, 1, 0]);
+        let t = assign(&cfg, &map, 2, &gt, &[0, 1, 1, 0], &[], &[]);
         assert_eq!(t.index.len(), 3);
         for (j, (&idx, &c)) in t.index.iter().zip(&t.class).enumerate() {
             let (iy, ix) = (idx as usize / map.w, idx as usize % map.w);
@@ -227,8 +261,8 @@ mod tests {
         let cfg = CenterTargetConfig { heading: HeadingCode::DoubleAngle, ..Default::default() };
         let front = Box3d::new(1.3, 0.2, -1.0, 4.2, 1.9, 1.6, 0.4);
         let back = Box3d { heading: 0.4 - std::f64::consts::PI, ..front };
-        let a = assign(&cfg, &map, 1, &[front], &[0]);
-        let b = assign(&cfg, &map, 1, &[back], &[0]);
+        let a = assign(&cfg, &map, 1, &[front], &[0], &[], &[]);
+        let b = assign(&cfg, &map, 1, &[back], &[0], &[], &[]);
         for (x, y) in a.codes.iter().zip(&b.codes) {
             assert!((x - y).abs() < 1e-6, "a car and the same car turned by π get one target");
         }
