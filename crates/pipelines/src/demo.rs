@@ -18,7 +18,10 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use indicatif::ProgressBar;
 use pi3det_data::Platform;
-use pi3det_nn::cli::{open_subset, progress_style, train_with_progress, DeviceArgs, RCNN_CPU_PRESET};
+use pi3det_nn::adapt::pipeline::{self, AdaptConfig, AdaptOptions};
+use pi3det_nn::cli::{
+    adapt_with_progress, open_subset, progress_style, train_with_progress, DeviceArgs, PI3DET_NET_CPU_PRESET,
+};
 use pi3det_nn::detect::{self, Latency};
 use pi3det_nn::eval::{self, ApSummary};
 use pi3det_nn::train::TrainOptions;
@@ -37,9 +40,18 @@ pub struct DemoArgs {
     /// (with --seeds, one seed_S/ folder per seed S).
     #[arg(long, default_value = "runs/demo")]
     pub out: PathBuf,
-    /// Detector config [default: the built-in two-stage CPU preset, configs/pointpillars_rcnn_cpu.toml].
+    /// Detector config for the vehicle model [default: the detector of the built-in Pi3DET-Net
+    /// preset, configs/pi3det_net_cpu.toml: the two-stage CPU PointPillars with RPJ, GTD and
+    /// PFA]. Adaptation runs only when its network is the adaptation config's.
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// Pi3DET-Net config for adapting the vehicle model to the drone and the quadruped
+    /// [default: the built-in configs/pi3det_net_cpu.toml].
+    #[arg(long, value_name = "PATH")]
+    pub adapt_config: Option<PathBuf>,
+    /// Knowledge-Adaptation epochs over each target's training frames (0: no adaptation).
+    #[arg(long, default_value_t = 2, value_name = "N")]
+    pub ka_epochs: usize,
     /// Vehicle training sequences. More distinct frames at the same number of steps: in one run
     /// each, 40 × 30 frames for 3 epochs gave Car BEV@0.7 57.9 where 12 × 30 for 10 epochs gave
     /// 56.3 (two-stage; single-stage 57.2 against 43.5) — see README.
@@ -53,7 +65,7 @@ pub struct DemoArgs {
     pub frames: u32,
     /// Drone and quadruped training sequences: simulated for adaptation (which trains on
     /// unlabelled target frames); the vehicle detector never sees them.
-    #[arg(long, default_value_t = 2, value_name = "N")]
+    #[arg(long, default_value_t = 4, value_name = "N")]
     pub target_train_sequences: u32,
     /// Evaluate at most N frames per platform, spread evenly (0: all) [default: the config's
     /// `train.max_eval_frames`].
@@ -92,6 +104,8 @@ pub struct Timings {
     pub simulate_s: f64,
     pub train_s: f64,
     pub evaluate_s: f64,
+    /// Pi3DET-Net's adaptation to the drone and the quadruped (evaluations included).
+    pub adapt_s: f64,
     pub total_s: f64,
 }
 
@@ -100,12 +114,13 @@ impl Timings {
         self.simulate_s += o.simulate_s;
         self.train_s += o.train_s;
         self.evaluate_s += o.evaluate_s;
+        self.adapt_s += o.adapt_s;
     }
 
     pub fn line(&self) -> String {
         format!(
-            "simulate {:.0} s, train {:.0} s, evaluate {:.0} s, total {:.0} s",
-            self.simulate_s, self.train_s, self.evaluate_s, self.total_s
+            "simulate {:.0} s, train {:.0} s, evaluate {:.0} s, adapt {:.0} s, total {:.0} s",
+            self.simulate_s, self.train_s, self.evaluate_s, self.adapt_s, self.total_s
         )
     }
 }
@@ -224,9 +239,14 @@ impl DemoArgs {
 pub fn run_demo(args: &DemoArgs) -> Result<DemoReport> {
     let t0 = Instant::now();
     args.check()?;
+    let mut adapt = match &args.adapt_config {
+        Some(p) => AdaptConfig::from_file(p)?,
+        None => AdaptConfig::from_toml_str(PI3DET_NET_CPU_PRESET).context("the built-in Pi3DET-Net preset")?,
+    };
+    adapt.ka.epochs = args.ka_epochs.max(1);
     let mut cfg = match &args.config {
         Some(p) => DetectorConfig::from_file(p)?,
-        None => DetectorConfig::from_toml_str(RCNN_CPU_PRESET)?,
+        None => adapt.detector.clone(),
     };
     if args.epochs > 0 {
         cfg.train.epochs = args.epochs;
@@ -242,7 +262,7 @@ pub fn run_demo(args: &DemoArgs) -> Result<DemoReport> {
         if multi {
             eprintln!("seed {seed} ({}/{}) in {}", i + 1, seeds.len(), dir.display());
         }
-        let run = run_seed(args, &cfg, seed, max_val, &dir, device)?;
+        let run = run_seed(args, &cfg, &adapt, seed, max_val, &dir, device)?;
         println!(
             "{}{}",
             if multi { format!("seed {seed}:\n") } else { String::new() },
@@ -287,6 +307,7 @@ pub fn run_demo(args: &DemoArgs) -> Result<DemoReport> {
 fn run_seed(
     args: &DemoArgs,
     cfg: &DetectorConfig,
+    adapt: &AdaptConfig,
     seed: u64,
     max_val: usize,
     dir: &Path,
@@ -329,9 +350,7 @@ fn run_seed(
     let ckpt_dir = dir.join("pointpillars_vehicle");
     let final_ckpt = ckpt_dir.join("final.safetensors");
     let trained_marker = ckpt_dir.join(".trained_on");
-    let mut cfg_train = cfg.clone();
-    cfg_train.train.eval_every = 0;
-    cfg_train.train.seed = seed;
+    let cfg_train = cfg_train_of(cfg, seed);
     // Reuse a checkpoint only when it was trained on this data with this config.
     let reused_checkpoint = reused_data
         && std::fs::read_to_string(&trained_marker).is_ok_and(|t| t == plan_text)
@@ -384,8 +403,55 @@ fn run_seed(
         rows.push(DemoRow { platform: p.as_str().into(), frames: frames.len(), summary, latency });
     }
     timings.evaluate_s = t.elapsed().as_secs_f64();
+    if args.ka_epochs > 0 {
+        let t = Instant::now();
+        let mut a = adapt.clone();
+        // The vehicle model is the Pre-Adaptation: KA starts from it with the same schedule.
+        a.detector = cfg_train_of(cfg, seed);
+        if let Err(e) = pipeline::check_architecture(&final_ckpt, det.cfg(), &a.detector) {
+            eprintln!("no adaptation: {e}");
+        } else {
+            let source =
+                open_subset(&root(Platform::Vehicle, "train"), Some("train"), None, cfg.train.max_train_frames)?;
+            for p in [Platform::Drone, Platform::Quadruped] {
+                let out = dir.join(format!("pi3det_net_{}", p.as_str()));
+                if out.exists() {
+                    std::fs::remove_dir_all(&out).with_context(|| out.display().to_string())?;
+                }
+                eprintln!("Pi3DET-Net: vehicle → {} ({} KA epochs)…", p.as_str(), a.ka.epochs);
+                let r = adapt_with_progress(
+                    AdaptOptions {
+                        config: a.clone(),
+                        source: source.clone(),
+                        target: open_subset(&root(p, "train"), Some("train"), None, 0)?,
+                        val: Some(open_subset(&root(p, "val"), Some("val"), None, max_val)?),
+                        out_dir: out,
+                        device,
+                        pa_ckpt: Some(final_ckpt.clone()),
+                        resume: false,
+                        stop_after: None,
+                    },
+                    false,
+                )?;
+                if let Some(summary) = r.adapted {
+                    let frames = r.val_frames;
+                    let platform = format!("{} + Pi3DET-Net", p.as_str());
+                    rows.push(DemoRow { platform, frames, summary, latency: Latency::default() });
+                }
+            }
+        }
+        timings.adapt_s = t.elapsed().as_secs_f64();
+    }
     timings.total_s = t0.elapsed().as_secs_f64();
     Ok(SeedRun { seed, dir: dir.to_path_buf(), reused_data, reused_checkpoint, rows, timings })
+}
+
+/// The config the vehicle model is trained with: no periodic evaluation, the run's seed.
+fn cfg_train_of(cfg: &DetectorConfig, seed: u64) -> DetectorConfig {
+    let mut c = cfg.clone();
+    c.train.eval_every = 0;
+    c.train.seed = seed;
+    c
 }
 
 /// Mean ± std per platform and class over the runs.
@@ -444,7 +510,11 @@ pub fn demo_table(rows: &[DemoRow], classes: &[String]) -> String {
         for c in classes {
             s += &ap_cell(&r.summary, c);
         }
-        s += &format!(" {:.0} |\n", r.latency.total_ms());
+        if r.latency.frames > 0 {
+            s += &format!(" {:.0} |\n", r.latency.total_ms());
+        } else {
+            s += " – |\n";
+        }
     }
     s
 }
@@ -511,12 +581,12 @@ mod tests {
     #[test]
     fn defaults_split_and_seeds() {
         let a = parse(&[]).unwrap();
-        assert_eq!((a.train_sequences, a.val_sequences, a.frames, a.target_train_sequences), (40, 12, 30, 2));
+        assert_eq!((a.train_sequences, a.val_sequences, a.frames, a.target_train_sequences), (40, 12, 30, 4));
         assert_eq!((a.seed_list(), a.epochs), (vec![0], 3));
         let plans = a.plans();
         assert_eq!(plans[0].platform, Platform::Vehicle);
         assert_eq!((plans[0].sequences, plans[0].val_sequences), (52, 12));
-        assert_eq!((plans[1].sequences, plans[1].val_sequences), (14, 12));
+        assert_eq!((plans[1].sequences, plans[1].val_sequences), (16, 12));
         assert_eq!((0..52).filter(|&i| plans[0].split_of(i) == "val").count(), 12);
         let a = parse(&["--seeds", "0,1,2"]).unwrap();
         assert_eq!(a.seed_list(), vec![0, 1, 2]);
@@ -579,6 +649,6 @@ mod tests {
         let t = seeds_table(&runs, &classes);
         assert!(t.contains("| 1 | vehicle | 10 | 42.0 / 21.0 | 10.0 / 5.0 |"), "{t}");
         let t = demo_table(&runs[0].rows, &classes);
-        assert!(t.contains("| drone | 10 | 40.0 / 20.0 | – | 0 |"), "{t}");
+        assert!(t.contains("| drone | 10 | 40.0 / 20.0 | – | – |"), "no latency measured: –");
     }
 }

@@ -161,10 +161,10 @@ impl KnowledgeAdaptation {
                 (Some(s), Some(t)) => det.kl_loss(&s, &t),
                 _ => None,
             };
-            let mut total = &ls + &lt;
-            if let Some(k) = &kl {
-                total = total + k;
-            }
+            let total = match &kl {
+                Some(k) => &ls + &lt + k,
+                None => &ls + &lt,
+            };
             self.optim.zero_grad();
             total.backward();
             let grad_norm = self.optim.clip_grad_norm(self.train.grad_clip);

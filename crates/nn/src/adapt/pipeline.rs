@@ -95,6 +95,12 @@ impl AdaptConfig {
         Ok(cfg)
     }
 
+    pub fn from_toml_str(s: &str) -> Result<Self> {
+        let cfg: Self = toml::from_str(s).map_err(|e| NnError::Config(e.to_string()))?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
     pub fn to_toml(&self) -> String {
         toml::to_string(self).unwrap_or_default()
     }

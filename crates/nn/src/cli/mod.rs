@@ -23,7 +23,7 @@ pub mod bench;
 pub mod detect;
 pub mod train;
 
-pub use adapt::{run_adapt, AdaptArgs};
+pub use adapt::{adapt_with_progress, run_adapt, AdaptArgs};
 pub use args::{open_subset, DataArgs, DeviceArgs};
 pub use bench::{run_bench_nn, BenchNnArgs};
 pub use detect::{format_latency, run_detect, DetectArgs};

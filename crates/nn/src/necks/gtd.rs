@@ -85,10 +85,9 @@ pub struct Gtd {
 impl Gtd {
     /// `bev [B, C, H, W]` → (`[B, C, H, W]`, predicted `[roll, pitch]` in degrees `[B, 2]`).
     pub fn forward(&self, bev: &Tensor) -> (Tensor, Tensor) {
-        let mut d = self.convs[0].forward(bev).relu();
-        for c in &self.convs[1..] {
-            d = d + c.forward(bev).relu();
-        }
+        // Not in place: each ReLU's backward needs its own output.
+        let d =
+            self.convs.iter().map(|c| c.forward(bev).relu()).reduce(|a, b| a + b).unwrap_or_else(|| bev.zeros_like());
         let attention = self.se.forward(&d.mean_dim(&[2i64, 3][..], false, Kind::Float)).sigmoid();
         let b = attention.size()[0];
         let out = (bev + &d * attention.view([b, self.channels, 1, 1])).relu();
