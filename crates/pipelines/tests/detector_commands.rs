@@ -1,5 +1,6 @@
 //! The detector commands end to end through `pi3det-torch` (what `pi3det train / detect / demo`
-//! run), at toy size: `demo` (simulate, train one epoch, evaluate per platform) and its `--reuse`
+//! run), at toy size: `demo` (simulate, train one epoch, evaluate per platform, adapt to the drone
+//! and the quadruped) and its `--reuse`
 //! rules, `--seeds` with the mean ± std table, then `detect` on the demo's checkpoint and the
 //! evaluator on the files detect wrote; earlier output kept unless `--overwrite`; and clear errors
 //! for a missing checkpoint. (`pi3det` handing these commands over is tested in crates/cli.)
@@ -76,7 +77,12 @@ fn demo_then_detect_then_eval() {
     assert!(out.contains("simulate") && out.contains("train") && out.contains("evaluate"), "no timings in\n{out}");
     assert_eq!(json["seeds"].as_array().map(Vec::len), Some(1));
     assert_eq!(json["seeds"][0]["seed"], 3);
-    assert_eq!(json["seeds"][0]["rows"].as_array().map(Vec::len), Some(3));
+    // The three platforms, then the drone and the quadruped after Pi3DET-Net's adaptation.
+    assert_eq!(json["seeds"][0]["rows"].as_array().map(Vec::len), Some(5));
+    for platform in ["drone", "quadruped"] {
+        assert!(out.contains(&format!("| {platform} + Pi3DET-Net |")), "no adapted {platform} row in\n{out}");
+        assert!(dir.join(format!("pi3det_net_{platform}/adapt.json")).is_file());
+    }
     assert_eq!(json["seeds"][0]["rows"][0]["frames"], 4, "one validation sequence of four frames");
     assert_eq!(reused(&json), (false, false));
     // The training seed is the demo's seed.
@@ -85,14 +91,14 @@ fn demo_then_detect_then_eval() {
     assert!(cfg.contains("seed = 3"), "{cfg}");
 
     // --reuse takes what these settings made (the evaluation's frame limit is not one of them)…
-    let (_, json) = demo(dir, "1", &["--seed", "3", "--reuse", "--max-val-frames", "2"]);
+    let (_, json) = demo(dir, "1", &["--seed", "3", "--reuse", "--max-val-frames", "2", "--ka-epochs", "0"]);
     assert_eq!(reused(&json), (true, true));
     assert_eq!(json["seeds"][0]["rows"][0]["frames"], 2);
     assert_eq!(json["seeds"][0]["timings"]["simulate_s"], 0.0);
     // …but not a checkpoint of another schedule, nor data of another seed.
-    let (_, json) = demo(dir, "2", &["--seed", "3", "--reuse"]);
+    let (_, json) = demo(dir, "2", &["--seed", "3", "--reuse", "--ka-epochs", "0"]);
     assert_eq!(reused(&json), (true, false));
-    let (_, json) = demo(dir, "2", &["--seed", "4", "--reuse"]);
+    let (_, json) = demo(dir, "2", &["--seed", "4", "--reuse", "--ka-epochs", "0"]);
     assert_eq!(reused(&json), (false, false));
     let cfg = std::fs::read_to_string(dir.join("pointpillars_vehicle/config.toml")).unwrap();
     assert!(cfg.contains("seed = 4"), "{cfg}");
@@ -150,7 +156,7 @@ fn demo_then_detect_then_eval() {
 fn demo_over_seeds_prints_mean_and_std() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let (out, json) = demo(dir, "1", &["--seeds", "0,1", "--max-val-frames", "2"]);
+    let (out, json) = demo(dir, "1", &["--seeds", "0,1", "--max-val-frames", "2", "--ka-epochs", "0"]);
     assert!(out.contains("mean ± sample std"), "{out}");
     assert!(out.contains("| 1 | quadruped | 2 |"), "no per-seed row in\n{out}");
     assert!(out.contains(" ± "), "{out}");
