@@ -2,7 +2,8 @@
 //! training frames → Knowledge-Adaptation, then the source-only (PA) model and the adapted one
 //! evaluated on the target's validation frames; `adapt.json` and `adapt.md` in the output folder.
 //!
-//! Layout of `--out`: `adapt_config.toml`; `pa/` (the training run of PA: checkpoints with stage
+//! Layout of `--out`: `adapt_config.toml`; `val_source_only[_vpp].jsonl`, `val_adapted.jsonl`
+//! (the evaluated detections, for `pi3det eval --breakdown`); `pa/` (the training run of PA: checkpoints with stage
 //! `pa`, `final.safetensors`); `pseudo_labels.jsonl` (the labels KA starts from, detection format);
 //! `ka/` (epoch checkpoints with stage `ka` and optimiser moments, `labels_model.safetensors` —
 //! the weights the current pseudo-labels came from — and `final.safetensors`). A run started again
@@ -270,8 +271,10 @@ fn latest_checkpoint(dir: &Path) -> Option<PathBuf> {
         .map(|(_, p)| p)
 }
 
-fn evaluate(det: &Detector, prep: Arc<Preprocessor>, val: &Subset) -> Result<ApSummary> {
+/// AP on `val`; the detections go to `out` (JSON lines, for `pi3det eval --breakdown`).
+fn evaluate(det: &Detector, prep: Arc<Preprocessor>, val: &Subset, out: &Path) -> Result<ApSummary> {
     let (frames, _) = detect::detect_with(det, prep, val, 4, &mut |_, _| {})?;
+    detect::write_jsonl(out, &frames)?;
     let r = det.cfg().pillars.point_cloud_range;
     let opts = eval::options(&det.cfg().classes, Some([r[0], r[1], r[3], r[4]]), None);
     Ok(eval::evaluate(&frames, &opts)?.1)
@@ -408,9 +411,10 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
 
     if let Some(v) = val {
         on_event(AdaptEvent::Stage("evaluating the source-only model"));
-        report.source_only = Some(evaluate(&det, plain_prep.clone(), v)?);
+        report.source_only = Some(evaluate(&det, plain_prep.clone(), v, &out.join("val_source_only.jsonl"))?);
         if vpp.is_some() {
-            report.source_only_vpp = Some(evaluate(&det, Arc::new(target_prep(false)?), v)?);
+            let o = out.join("val_source_only_vpp.jsonl");
+            report.source_only_vpp = Some(evaluate(&det, Arc::new(target_prep(false)?), v, &o)?);
         }
     }
 
@@ -524,7 +528,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     }
     if let Some(v) = val {
         on_event(AdaptEvent::Stage("evaluating the adapted model"));
-        report.adapted = Some(evaluate(&det, Arc::new(target_prep(false)?), v)?);
+        report.adapted = Some(evaluate(&det, Arc::new(target_prep(false)?), v, &out.join("val_adapted.jsonl"))?);
     }
     report.vpp = vpp.as_ref().map(|v| v.counts());
     report.total_seconds = t0.elapsed().as_secs_f64();
