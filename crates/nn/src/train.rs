@@ -40,6 +40,9 @@ pub struct TrainOptions {
     pub resume: Option<PathBuf>,
     /// Recorded in the checkpoints (`pa` for Pi3DET-Net's Pre-Adaptation; `None`: plain training).
     pub stage: Option<String>,
+    /// Every frame's transform into the detector's frame instead of the config's `shift_z`
+    /// (e.g. Virtual Platform Pose); training, the ground-truth database and evaluation use it.
+    pub frame_transform: Option<Arc<dyn crate::preprocess::FrameTransform>>,
 }
 
 /// Progress of one step, for progress bars.
@@ -163,7 +166,10 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
     std::fs::create_dir_all(&opts.out_dir).map_err(|e| NnError::io(&opts.out_dir, e))?;
     pi3det_data::io::write_atomic(&opts.out_dir.join("config.toml"), cfg.to_toml().as_bytes(), true)?;
     tch::manual_seed(cfg.train.seed as i64);
-    let mut det = Detector::new(cfg, opts.device)?;
+    let mut det = match &opts.frame_transform {
+        Some(t) => Detector::with_preprocessor(Preprocessor::new(cfg)?.with_frame_transform(t.clone()), opts.device)?,
+        None => Detector::new(cfg, opts.device)?,
+    };
     let mut optim = Optimizer::new(det.named_trainables(), &cfg.train);
     let mut state = TrainState { stage: opts.stage.clone(), ..Default::default() };
     if let Some(path) = &opts.resume {

@@ -77,6 +77,7 @@ fn resume_reproduces_an_uninterrupted_run() {
             device: Device::Cpu,
             resume: resume.map(Path::to_path_buf),
             stage: None,
+            frame_transform: None,
         };
         train(opts, &mut |_| {}).unwrap()
     };
@@ -110,6 +111,7 @@ fn resume_reproduces_an_uninterrupted_run() {
         device: Device::Cpu,
         resume: Some(a.join("checkpoint_epoch_1.safetensors")),
         stage: None,
+        frame_transform: None,
     };
     assert!(train(opts, &mut |_| {}).is_err());
 

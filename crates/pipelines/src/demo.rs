@@ -369,6 +369,7 @@ fn run_seed(
                 device,
                 resume: None,
                 stage: None,
+                frame_transform: None,
             },
             false,
         )?;

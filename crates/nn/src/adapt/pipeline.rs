@@ -356,6 +356,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
                         device: opts.device,
                         resume: latest_checkpoint(&dir),
                         stage: Some("pa".into()),
+                        frame_transform: None,
                     },
                     &mut |e| on_event(AdaptEvent::Pa(e)),
                 )?;

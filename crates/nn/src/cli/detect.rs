@@ -38,6 +38,10 @@ pub struct DetectArgs {
     /// Override the z shift applied to the points (e.g. to move a drone's ground to z ≈ 0).
     #[arg(long, allow_negative_numbers = true)]
     pub shift_z: Option<f64>,
+    /// Level every frame through Virtual Platform Pose to a virtual sensor this many metres above
+    /// the ground (the height the detector was trained at; detections go back to the sensor frame).
+    #[arg(long, value_name = "M")]
+    pub vpp_height: Option<f64>,
     /// Also evaluate against the data's ground truth (within the detector's range) and print it
     /// with the error breakdown (eval.json, breakdown.json).
     #[arg(long)]
@@ -47,6 +51,16 @@ pub struct DetectArgs {
     pub overwrite: bool,
     #[command(flatten)]
     pub device: DeviceArgs,
+}
+
+/// Virtual Platform Pose putting frames at `height_m` above the ground (`--vpp-height`).
+pub fn vpp(
+    cfg: &crate::DetectorConfig,
+    height_m: f64,
+) -> Result<std::sync::Arc<dyn crate::preprocess::FrameTransform>> {
+    let v = crate::adapt::VppConfig { source_height_m: Some(height_m), ..Default::default() };
+    v.validate()?;
+    Ok(std::sync::Arc::new(crate::adapt::VirtualPlatformPose::new(&v, cfg.shift_z, height_m)))
 }
 
 pub fn run_detect(args: &DetectArgs) -> Result<()> {
@@ -69,6 +83,11 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     }
     let mut det = crate::Detector::new(&ck.config, device)?;
     ck.load_into(&mut det, &args.ckpt)?;
+    if let Some(h) = args.vpp_height {
+        det.prep = std::sync::Arc::new(
+            crate::preprocess::Preprocessor::new(&ck.config)?.with_frame_transform(vpp(&ck.config, h)?),
+        );
+    }
     let subset = args.data.subset("val", 0)?;
     let bar = ProgressBar::new(subset.len() as u64)
         .with_style(progress_style("detect [{bar:30}] {pos}/{len} {elapsed}<{eta}"));

@@ -46,6 +46,11 @@ pub struct TrainArgs {
     /// Override the config's seed.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Level every training and validation frame through Virtual Platform Pose to a virtual
+    /// sensor this many metres above the ground (e.g. a detector trained on drone labels in the
+    /// frame Pi3DET-Net adapts in; `pi3det detect --vpp-height` for its inference).
+    #[arg(long, value_name = "M")]
+    pub vpp_height: Option<f64>,
     #[command(flatten)]
     pub device: DeviceArgs,
 }
@@ -148,6 +153,10 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         train.len(),
         val.as_ref().map(|v| format!(", {} validation frames", v.len())).unwrap_or_default()
     );
+    let frame_transform = match args.vpp_height {
+        Some(h) => Some(super::detect::vpp(&cfg, h)?),
+        None => None,
+    };
     let report = train_with_progress(
         TrainOptions {
             config: cfg,
@@ -157,6 +166,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
             device,
             resume: args.resume.clone(),
             stage: None,
+            frame_transform,
         },
         false,
     )?;
