@@ -225,7 +225,11 @@ pub struct AdaptReport {
 /// Errors unless some of the target's annotated classes are the detector's (a target that names
 /// its cars `car` or `vehicle.car` would silently train and score nothing).
 pub fn check_classes(subset: &Subset, cfg: &DetectorConfig, what: &str) -> Result<()> {
-    let names: BTreeSet<String> = subset.infos()?.into_iter().flat_map(|i| i.objects).map(|o| o.name).collect();
+    check_class_names(&subset.infos()?, cfg, what)
+}
+
+fn check_class_names(infos: &[pi3det_data::FrameInfo], cfg: &DetectorConfig, what: &str) -> Result<()> {
+    let names: BTreeSet<&str> = infos.iter().flat_map(|i| &i.objects).map(|o| o.name.as_str()).collect();
     if names.is_empty() || names.iter().any(|n| cfg.class_index(n).is_some()) {
         return Ok(());
     }
@@ -292,7 +296,9 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         }
     }
     check_classes(&opts.source, det_cfg, "the source")?;
-    check_classes(&opts.target, det_cfg, "the target")?;
+    // The target's infos, read once: class check, pose check, pseudo-label quality.
+    let target_infos = opts.target.infos()?;
+    check_class_names(&target_infos, det_cfg, "the target")?;
     let val = opts.val.as_ref().filter(|v| !v.is_empty());
     if opts.val.is_some() && val.is_none() {
         return Err(NnError::Input("the validation split has no frames".into()));
@@ -347,7 +353,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
                 on_event(AdaptEvent::Message(format!("PA already finished: {}", done.display())));
             } else {
                 let t = Instant::now();
-                let r = train::train(
+                train::train(
                     TrainOptions {
                         config: det_cfg.clone(),
                         train: opts.source.clone(),
@@ -361,7 +367,6 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
                     &mut |e| on_event(AdaptEvent::Pa(e)),
                 )?;
                 report.pa_seconds = t.elapsed().as_secs_f64();
-                let _ = r;
             }
             done
         }
@@ -389,7 +394,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
                 }
             };
             report.source_height_m = Some(h);
-            let has_pose = opts.target.infos()?.iter().all(|i| i.world_from_lidar.is_some());
+            let has_pose = target_infos.iter().all(|i| i.world_from_lidar.is_some());
             on_event(AdaptEvent::Message(if has_pose && v.attitude == super::AttitudeSource::Auto {
                 "VPP: target roll and pitch from the frames' poses, height from the ground fit".into()
             } else {
@@ -431,7 +436,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
             on_event(AdaptEvent::Labels { done: d, total: t })
         })
     };
-    let gt = opts.target.infos()?;
+    let gt = &target_infos;
     let has_gt = gt.iter().any(|i| !i.objects.is_empty());
     let r = det_cfg.pillars.point_cloud_range;
     let bev = [r[0], r[1], r[3], r[4]];
@@ -444,12 +449,12 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         make_labels(&det, on_event)?
     };
     if has_gt {
-        let q = pseudo_labels::quality(&labels, &gt, det_cfg, pos, &[0.5, 0.7], bev);
+        let q = pseudo_labels::quality(&labels, gt, det_cfg, pos, &[0.5, 0.7], bev);
         let name = if vpp.is_some() { "PA model, through VPP" } else { "PA model" };
         report.pseudo_label_quality.push(QualityRow { labels: name.into(), rows: q });
         if vpp.is_some() {
             let (raw, _) = detect::detect_with(&det, plain_prep.clone(), &opts.target, 4, &mut |_, _| {})?;
-            let q = pseudo_labels::quality(&raw, &gt, det_cfg, pos, &[0.5, 0.7], bev);
+            let q = pseudo_labels::quality(&raw, gt, det_cfg, pos, &[0.5, 0.7], bev);
             report
                 .pseudo_label_quality
                 .insert(0, QualityRow { labels: "PA model, sensor frame (no VPP)".into(), rows: q });
@@ -523,6 +528,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     }
     report.ka_seconds = t_ka.elapsed().as_secs_f64();
     report.final_checkpoint = Some(final_path);
+    // Counted again after the evaluation, which levels the validation frames too.
     report.vpp = vpp.as_ref().map(|v| v.counts());
     if opts.stop_after == Some(Stage::Ka) {
         return Ok(report);

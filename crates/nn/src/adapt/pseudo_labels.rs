@@ -166,8 +166,7 @@ pub fn quality(
                         .filter(|(j, _)| !used[*j])
                         .map(|(j, t)| (j, iou_3d(&p.box3d, t)))
                         .max_by(|a, b| a.1.total_cmp(&b.1));
-                    if let Some((j, iou)) = best.filter(|(_, iou)| *iou >= thr) {
-                        let _ = iou;
+                    if let Some((j, _)) = best.filter(|(_, iou)| *iou >= thr) {
                         used[j] = true;
                         tp += 1;
                     }
