@@ -4,5 +4,9 @@
 //! cameras ([`project`]). `pi3det autolabel` (crates/pipelines) runs the detectors in front.
 
 pub mod error;
+pub mod fusion;
+pub mod kde;
+pub mod labels;
 
 pub use error::AutolabelError;
+pub use labels::LabelSet;

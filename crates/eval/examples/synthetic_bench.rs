@@ -51,6 +51,7 @@ fn write(s: &common::synthetic::Split, dir: &Path) {
             boxes_lidar: dets.iter().map(|d| d.lidar.expect("lidar box").to_array()).collect(),
             bbox: None,
             alpha: None,
+            track_ids: None,
         };
         jsonl.push_str(&serde_json::to_string(&line).expect("json"));
         jsonl.push('\n');

@@ -69,6 +69,9 @@ pub struct JsonlFrame {
     pub bbox: Option<Vec<[f64; 4]>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub alpha: Option<Vec<f64>>,
+    /// Track ids (`pi3det track`), one per box; the evaluator ignores them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub track_ids: Option<Vec<u64>>,
 }
 
 impl JsonlFrame {
@@ -81,6 +84,7 @@ impl JsonlFrame {
             boxes_lidar: objects.iter().map(|o| o.box3d.to_array()).collect(),
             bbox: None,
             alpha: None,
+            track_ids: None,
         }
     }
 }
@@ -219,7 +223,11 @@ impl Detections {
                 f.boxes_lidar.len()
             ));
         }
-        for (key, len) in [("bbox", f.bbox.as_ref().map(Vec::len)), ("alpha", f.alpha.as_ref().map(Vec::len))] {
+        for (key, len) in [
+            ("bbox", f.bbox.as_ref().map(Vec::len)),
+            ("alpha", f.alpha.as_ref().map(Vec::len)),
+            ("track_ids", f.track_ids.as_ref().map(Vec::len)),
+        ] {
             if len.is_some_and(|l| l != n) {
                 return Err(format!("frame {}: {key} has {} entries for {n} detections", f.frame_id, len.unwrap_or(0)));
             }
