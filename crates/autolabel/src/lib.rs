@@ -7,6 +7,7 @@ pub mod error;
 pub mod fusion;
 pub mod kde;
 pub mod labels;
+pub mod tracking;
 
 pub use error::AutolabelError;
 pub use labels::LabelSet;
