@@ -7,7 +7,12 @@ pub mod error;
 pub mod fusion;
 pub mod kde;
 pub mod labels;
+pub mod perturb;
+pub mod quality;
 pub mod tracking;
+
+#[cfg(feature = "cli")]
+pub mod cli;
 
 pub use error::AutolabelError;
 pub use labels::LabelSet;

@@ -28,6 +28,10 @@ enum Command {
     Eval(pi3det_eval::cli::EvalArgs),
     /// Platform-discrepancy statistics, tables and figures (paper §3.3, Fig. 2), with pose-free attitude.
     Stats(pi3det_analysis::cli::StatsArgs),
+    /// Fuse several detectors' boxes by kernel-density box fusion (MS3D++) into one label set.
+    Fuse(pi3det_autolabel::cli::FuseArgs),
+    /// Track labels over sequences (Kalman filter, GIoU + Hungarian), interpolating missed frames.
+    Track(pi3det_autolabel::cli::TrackArgs),
     /// Train a detector (PointPillars, anchor or center head) from a TOML config.
     Train(Forwarded),
     /// Run a trained detector over a dataset; write JSON lines and result.pkl, with latency.
@@ -45,6 +49,8 @@ enum Command {
 enum BenchCommand {
     /// Simulator throughput (frames/s, rays/s) for a 64×1024 scan.
     Sim(pi3det_sim::cli::BenchArgs),
+    /// Box fusion and tracking against ground truth with simulated detectors, and their speed.
+    Autolabel(pi3det_autolabel::cli::BenchArgs),
     /// Our detector's training step and inference against PyTorch running the same network.
     Nn(Forwarded),
 }
@@ -80,6 +86,11 @@ fn main() -> std::process::ExitCode {
         Command::Simulate(args) => pi3det_sim::cli::run(args).map_err(anyhow::Error::from),
         Command::Eval(args) => pi3det_eval::cli::run(args).map_err(anyhow::Error::from),
         Command::Stats(args) => pi3det_analysis::cli::run(args).map_err(anyhow::Error::from),
+        Command::Fuse(args) => pi3det_autolabel::cli::run_fuse(args).map_err(anyhow::Error::from),
+        Command::Track(args) => pi3det_autolabel::cli::run_track(args).map_err(anyhow::Error::from),
+        Command::Bench(BenchCommand::Autolabel(args)) => {
+            pi3det_autolabel::cli::run_bench(args).map_err(anyhow::Error::from)
+        }
         Command::Bench(BenchCommand::Sim(args)) => pi3det_sim::cli::run_bench(args).map_err(anyhow::Error::from),
         Command::Train(_)
         | Command::Detect(_)
