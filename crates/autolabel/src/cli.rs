@@ -5,12 +5,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use pi3det_data::FrameInfo;
-use rayon::prelude::*;
 
 use crate::fusion::{fuse, FusionConfig, FusionInput};
 use crate::labels::LabelSet;
-use crate::perturb::{simulate_detector, DetectorNoise};
+use crate::perturb::{noise_profiles, simulate_detector, DetectorNoise};
 use crate::quality::{quality, quality_table, Quality};
+use crate::read_infos;
 use crate::tracking::{track_dataset, TrackingConfig};
 use crate::AutolabelError;
 
@@ -221,26 +221,6 @@ pub fn run_bench(args: &BenchArgs) -> Result<(), AutolabelError> {
     Ok(())
 }
 
-/// Detector error profiles: each noisier in a different way.
-pub fn noise_profiles(n: usize) -> Vec<DetectorNoise> {
-    (0..n)
-        .map(|k| {
-            let d = DetectorNoise::default();
-            match k % 3 {
-                0 => d,
-                1 => DetectorNoise { miss_near: 0.15, centre_sigma_m: 0.2, displaced: 0.15, ..d },
-                _ => DetectorNoise {
-                    miss_far: 0.6,
-                    size_sigma: 0.08,
-                    heading_sigma_rad: 0.08,
-                    false_positives: 2.0,
-                    ..d
-                },
-            }
-        })
-        .collect()
-}
-
 fn speed(fusion: &FusionConfig) -> Result<(), AutolabelError> {
     use crate::tracking::{track_sequence, TrackFrame};
     use pi3det_data::Object;
@@ -365,12 +345,6 @@ fn refuse_existing(out: &Path, overwrite: bool) -> Result<(), AutolabelError> {
         return Err(AutolabelError::invalid(out, "exists; pass --overwrite to replace it"));
     }
     Ok(())
-}
-
-/// Every frame's info, in dataset order.
-pub fn read_infos(path: &Path) -> Result<Vec<FrameInfo>, AutolabelError> {
-    let ds = pi3det_data::open(path)?;
-    Ok((0..ds.len()).into_par_iter().map(|i| ds.info(i)).collect::<Result<_, _>>()?)
 }
 
 #[cfg(test)]

@@ -119,6 +119,26 @@ fn normal(rng: &mut impl Rng) -> f64 {
     (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
 }
 
+/// Detector error profiles: each noisier in a different way.
+pub fn noise_profiles(n: usize) -> Vec<DetectorNoise> {
+    (0..n)
+        .map(|k| {
+            let d = DetectorNoise::default();
+            match k % 3 {
+                0 => d,
+                1 => DetectorNoise { miss_near: 0.15, centre_sigma_m: 0.2, displaced: 0.15, ..d },
+                _ => DetectorNoise {
+                    miss_far: 0.6,
+                    size_sigma: 0.08,
+                    heading_sigma_rad: 0.08,
+                    false_positives: 2.0,
+                    ..d
+                },
+            }
+        })
+        .collect()
+}
+
 fn poisson(rng: &mut impl Rng, mean: f64) -> usize {
     // Knuth's method; means here are a few per frame.
     let l = (-mean).exp();
