@@ -4,5 +4,9 @@
 //! cameras ([`project`]). `pi3det autolabel` (crates/pipelines) runs the detectors in front.
 
 pub mod error;
+pub mod project;
+
+#[cfg(feature = "cli")]
+pub mod cli;
 
 pub use error::AutolabelError;

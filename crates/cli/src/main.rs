@@ -28,6 +28,8 @@ enum Command {
     Eval(pi3det_eval::cli::EvalArgs),
     /// Platform-discrepancy statistics, tables and figures (paper §3.3, Fig. 2), with pose-free attitude.
     Stats(pi3det_analysis::cli::StatsArgs),
+    /// Draw 3-D boxes into the camera images through the calibration; flag boxes no camera sees.
+    Project(pi3det_autolabel::cli::project::ProjectArgs),
     /// Train a detector (PointPillars, anchor or center head) from a TOML config.
     Train(Forwarded),
     /// Run a trained detector over a dataset; write JSON lines and result.pkl, with latency.
@@ -80,6 +82,7 @@ fn main() -> std::process::ExitCode {
         Command::Simulate(args) => pi3det_sim::cli::run(args).map_err(anyhow::Error::from),
         Command::Eval(args) => pi3det_eval::cli::run(args).map_err(anyhow::Error::from),
         Command::Stats(args) => pi3det_analysis::cli::run(args).map_err(anyhow::Error::from),
+        Command::Project(args) => pi3det_autolabel::cli::project::run(args).map(|_| ()).map_err(anyhow::Error::from),
         Command::Bench(BenchCommand::Sim(args)) => pi3det_sim::cli::run_bench(args).map_err(anyhow::Error::from),
         Command::Train(_)
         | Command::Detect(_)
