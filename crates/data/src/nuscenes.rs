@@ -176,3 +176,65 @@ impl Dataset for NuscenesDataset {
             .ok_or_else(|| DataError::invalid(&self.root, format!("frame index {index} out of range")))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rows(m: &[&[f64]]) -> Value {
+        Value::List(m.iter().map(|r| Value::List(r.iter().map(|&x| Value::Float(x)).collect())).collect())
+    }
+
+    fn info(images: Value) -> Value {
+        let sample = Value::dict([
+            ("token", Value::Str("t0".into())),
+            ("lidar_points", Value::dict([("lidar_path", Value::Str("x.bin".into()))])),
+            ("images", images),
+        ]);
+        Value::dict([
+            ("metainfo", Value::dict([("categories", Value::dict([("car", Value::Int(0))]))])),
+            ("data_list", Value::List(vec![sample])),
+        ])
+    }
+
+    const ID4: &[&[f64]] = &[&[1., 0., 0., 0.], &[0., 1., 0., 0.], &[0., 0., 1., 0.], &[0., 0., 0., 1.]];
+
+    #[test]
+    fn cameras_with_3x4_cam2img_fold_the_offset_into_the_extrinsics() {
+        // [K | K·(0.5, 0, 0)] with K = diag(100, 100, 1): the camera sits 0.5 m along −x.
+        let k34: &[&[f64]] = &[&[100., 0., 10., 50.], &[0., 100., 20., 0.], &[0., 0., 1., 0.]];
+        let images = Value::dict([
+            (
+                "CAM_A",
+                Value::dict([
+                    ("img_path", Value::Str("a.jpg".into())),
+                    ("cam2img", rows(k34)),
+                    ("lidar2cam", rows(ID4)),
+                ]),
+            ),
+            // mmdet3d leaves a missing camera's matrices out: skipped.
+            ("CAM_B", Value::dict([("img_path", Value::Str("b.jpg".into()))])),
+        ]);
+        let dir = Path::new("/nonexistent");
+        let ds = NuscenesDataset::from_value(&dir.join("i.pkl"), &info(images), None).unwrap();
+        let f = ds.info(0).unwrap();
+        assert_eq!(f.cameras.len(), 1);
+        let c = &f.cameras[0];
+        assert_eq!(c.name, "CAM_A");
+        assert_eq!(c.intrinsics, [[100., 0., 10.], [0., 100., 20.], [0., 0., 1.]]);
+        assert!((c.camera_from_lidar[0][3] - 0.5).abs() < 1e-12, "{:?}", c.camera_from_lidar);
+        assert_eq!(c.camera_from_lidar[1][3], 0.0);
+        // Not found anywhere: the first candidate (beside the info file) is kept.
+        assert_eq!(c.image_path.as_deref(), Some(dir.join("a.jpg").as_path()));
+    }
+
+    #[test]
+    fn malformed_cam2img_names_the_camera_and_key() {
+        let images = Value::dict([(
+            "CAM_A",
+            Value::dict([("cam2img", rows(&[&[1., 0.], &[0., 1.]])), ("lidar2cam", rows(ID4))]),
+        )]);
+        let e = NuscenesDataset::from_value(Path::new("i.pkl"), &info(images), None).err().unwrap().to_string();
+        assert!(e.contains("images.CAM_A") && e.contains("cam2img"), "{e}");
+    }
+}
