@@ -310,3 +310,91 @@ fn existing_output_needs_overwrite() {
     assert!("a..b".parse::<FrameRange>().is_err());
     assert_eq!("..3".parse::<FrameRange>().unwrap(), FrameRange { start: 0, end: Some(3) });
 }
+
+/// A written Pi3DET dataset: frame 0 with a distorting camera and a 320×200 image, frame 1
+/// without calibration.
+fn write_pi3det(root: &Path) {
+    use pi3det_data::pi3det::Pi3detWriter;
+    use pi3det_data::{Calib, Frame, Object, PointCloud};
+    let image = root.join("training/image/0000000.png");
+    std::fs::create_dir_all(image.parent().unwrap()).unwrap();
+    image::RgbImage::from_pixel(320, 200, image::Rgb([90, 90, 200])).save(&image).unwrap();
+    // LiDAR x forward → camera z; camera x = −y, camera y = −z.
+    let e = [[0., -1., 0., 0.], [0., 0., -1., 0.], [1., 0., 0., 0.], [0., 0., 0., 1.]];
+    let k = [[200., 0., 160.], [0., 200., 100.], [0., 0., 1.]];
+    let mut w = Pi3detWriter::create(root, "val", false).unwrap();
+    for id in ["0000000", "0000001"] {
+        let mut info = FrameInfo::new(id, PathBuf::new());
+        info.objects.push(Object::new("Car", Box3d::new(8.0, 0.5, 0.0, 4.0, 1.8, 1.5, 0.1)));
+        if id == "0000000" {
+            info.calib = Some(Calib::Pinhole {
+                camera_from_lidar: e,
+                intrinsics: k,
+                distortion: vec![-0.1, 0.01, 0.0, 0.0, 0.0],
+            });
+            info.cameras.push(CameraInfo {
+                name: "camera".into(),
+                image_path: Some(image.clone()),
+                camera_from_lidar: e,
+                intrinsics: k,
+                distortion: vec![-0.1, 0.01, 0.0, 0.0, 0.0],
+                image_size: None,
+            });
+        }
+        w.write_frame(&Frame { info, points: PointCloud::from_xyzi(&[[1.0, 2.0, 3.0, 0.5]]) }).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+#[test]
+fn pi3det_distortion_image_and_missing_calibration_end_to_end() {
+    let dir = tempfile::tempdir().unwrap();
+    write_pi3det(dir.path());
+    let ds = pi3det_data::open(dir.path()).unwrap();
+    let info = ds.info(0).unwrap();
+    assert_eq!(info.cameras.len(), 1, "the reader keeps calib and image_path");
+    assert_eq!(info.cameras[0].image_path.as_deref(), Some(dir.path().join("training/image/0000000.png").as_path()));
+    let cam = CameraModel::from_info(&info.cameras[0]);
+    // LiDAR (10, −3, 1) → camera (3, −1, 10) → (0.3, −0.1), r² = 0.1,
+    // factor 1 − 0.1·0.1 + 0.01·0.01 = 0.9901 → u = 160 + 200·0.29703, v = 100 − 200·0.09901.
+    let [u, v] = cam.project([10.0, -3.0, 1.0]).unwrap();
+    assert!((u - 219.406).abs() < 1e-9 && (v - 80.198).abs() < 1e-9, "{u} {v}");
+    let out = dir.path().join("out");
+    let report = project::project(&options(dir.path().to_path_buf(), &out)).unwrap();
+    let (f0, f1) = (&report.frames[0], &report.frames[1]);
+    assert_eq!((f0.cameras[0].width, f0.cameras[0].height), (320, 200));
+    assert!(f0.cameras[0].image.ends_with("0000000.png"));
+    assert_eq!(f0.boxes[0].cameras, ["camera"]);
+    assert!(f1.message.as_deref().unwrap().contains("no calibration") && f1.cameras.is_empty());
+    let s = &report.summary;
+    assert_eq!((s.frames, s.images_written, s.frames_without_calibration, s.unchecked), (2, 1, 1, 1));
+    assert!(s.to_string().contains("1 frames without calibration (1 boxes unchecked)"), "{s}");
+    // The drawing is the image with the box on it.
+    let drawn = image::open(out.join(&f0.cameras[0].output)).unwrap().to_rgb8();
+    assert_eq!(drawn.dimensions(), (320, 200));
+    assert!(drawn.pixels().filter(|p| p.0[1] > 180 && p.0[2] < 120).count() > 50, "green edges expected");
+}
+
+#[test]
+fn kitti_result_folder_boxes_go_back_through_the_calibration() {
+    let data = shared("kitti/training");
+    let dir = tempfile::tempdir().unwrap();
+    let det = dir.path().join("results");
+    std::fs::create_dir(&det).unwrap();
+    // Frame 000001's labels with a score column: the camera boxes must land where the gt does.
+    let labels = std::fs::read_to_string(data.join("label_2/000001.txt")).unwrap();
+    let lines: String = labels.lines().filter(|l| !l.starts_with("DontCare")).map(|l| format!("{l} 0.75\n")).collect();
+    std::fs::write(det.join("000001.txt"), lines).unwrap();
+    let mut opts = options(data, &dir.path().join("out"));
+    opts.det = Some(det);
+    opts.frames = Some("1".parse().unwrap());
+    let report = project::project(&opts).unwrap();
+    let boxes = &report.frames[0].boxes;
+    assert_eq!(boxes.len(), 6);
+    for (g, d) in boxes[..3].iter().zip(&boxes[3..]) {
+        assert_eq!((g.source, d.source, d.score), (Source::Gt, Source::Det, Some(0.75)));
+        assert_eq!(g.class, d.class);
+        assert!(g.box_lidar.iter().zip(d.box_lidar).all(|(a, b)| (a - b).abs() < 1e-3), "{g:?} {d:?}");
+        assert_eq!(d.cameras, ["image_2"]);
+    }
+}

@@ -218,7 +218,13 @@ impl Pi3detWriter {
         let info = &frame.info;
         let rel = format!("training/point_cloud/{}.bin", info.id);
         write_bin(&self.root.join(&rel), &frame.points.to_xyzi(), self.overwrite)?;
-        self.infos.push(info_value(info, &rel));
+        let mut value = info_value(info, &rel);
+        // The camera image is not copied: its path is kept, relative to the root when inside it.
+        if let (Value::Dict(d), Some(image)) = (&mut value, info.cameras.first().and_then(|c| c.image_path.as_ref())) {
+            let image = image.strip_prefix(&self.root).unwrap_or(image);
+            d.push((Value::Str("image_path".into()), Value::Str(image.to_string_lossy().into_owned())));
+        }
+        self.infos.push(value);
         Ok(())
     }
 
