@@ -8,6 +8,7 @@ pub mod fusion;
 pub mod kde;
 pub mod labels;
 pub mod perturb;
+pub mod project;
 pub mod quality;
 pub mod tracking;
 

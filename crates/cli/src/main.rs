@@ -29,9 +29,11 @@ enum Command {
     /// Platform-discrepancy statistics, tables and figures (paper §3.3, Fig. 2), with pose-free attitude.
     Stats(pi3det_analysis::cli::StatsArgs),
     /// Fuse several detectors' boxes by kernel-density box fusion (MS3D++) into one label set.
-    Fuse(pi3det_autolabel::cli::FuseArgs),
+    Fuse(pi3det_autolabel::cli::fuse::FuseArgs),
     /// Track labels over sequences (Kalman filter, GIoU + Hungarian), interpolating missed frames.
-    Track(pi3det_autolabel::cli::TrackArgs),
+    Track(pi3det_autolabel::cli::track::TrackArgs),
+    /// Draw 3-D boxes into the camera images through the calibration; flag boxes no camera sees.
+    Project(pi3det_autolabel::cli::project::ProjectArgs),
     /// Train a detector (PointPillars, anchor or center head) from a TOML config.
     Train(Forwarded),
     /// Run a trained detector over a dataset; write JSON lines and result.pkl, with latency.
@@ -50,7 +52,7 @@ enum BenchCommand {
     /// Simulator throughput (frames/s, rays/s) for a 64×1024 scan.
     Sim(pi3det_sim::cli::BenchArgs),
     /// Box fusion and tracking against ground truth with simulated detectors, and their speed.
-    Autolabel(pi3det_autolabel::cli::BenchArgs),
+    Autolabel(pi3det_autolabel::cli::bench::BenchArgs),
     /// Our detector's training step and inference against PyTorch running the same network.
     Nn(Forwarded),
 }
@@ -86,11 +88,12 @@ fn main() -> std::process::ExitCode {
         Command::Simulate(args) => pi3det_sim::cli::run(args).map_err(anyhow::Error::from),
         Command::Eval(args) => pi3det_eval::cli::run(args).map_err(anyhow::Error::from),
         Command::Stats(args) => pi3det_analysis::cli::run(args).map_err(anyhow::Error::from),
-        Command::Fuse(args) => pi3det_autolabel::cli::run_fuse(args).map_err(anyhow::Error::from),
-        Command::Track(args) => pi3det_autolabel::cli::run_track(args).map_err(anyhow::Error::from),
+        Command::Fuse(args) => pi3det_autolabel::cli::fuse::run(args).map_err(anyhow::Error::from),
+        Command::Track(args) => pi3det_autolabel::cli::track::run(args).map_err(anyhow::Error::from),
         Command::Bench(BenchCommand::Autolabel(args)) => {
-            pi3det_autolabel::cli::run_bench(args).map_err(anyhow::Error::from)
+            pi3det_autolabel::cli::bench::run(args).map_err(anyhow::Error::from)
         }
+        Command::Project(args) => pi3det_autolabel::cli::project::run(args).map(|_| ()).map_err(anyhow::Error::from),
         Command::Bench(BenchCommand::Sim(args)) => pi3det_sim::cli::run_bench(args).map_err(anyhow::Error::from),
         Command::Train(_)
         | Command::Detect(_)

@@ -92,6 +92,45 @@ pub enum Calib {
     },
 }
 
+/// One camera of a frame, as a pinhole model with OpenCV plumb-bob distortion: a LiDAR point `p`
+/// reaches pixels as `intrinsics · distort(camera_from_lidar · p)`. Filled by the nuScenes (six
+/// cameras of `images`), Pi3DET (`calib` + `image_path`) and KITTI (P2 split into intrinsics and
+/// a translation) readers.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraInfo {
+    pub name: String,
+    /// Where the image should be (resolved against the dataset root); it may not exist.
+    pub image_path: Option<PathBuf>,
+    pub camera_from_lidar: [[f64; 4]; 4],
+    pub intrinsics: [[f64; 3]; 3],
+    /// `k1 k2 p1 p2 k3` (OpenCV order; shorter lists mean the rest are 0; empty: none).
+    pub distortion: Vec<f64>,
+    /// The dataset's usual image size `[width, height]`, for drawing when the image is missing;
+    /// the image file's own size wins when it is read.
+    pub image_size: Option<[u32; 2]>,
+}
+
+impl CameraInfo {
+    /// KITTI's left colour camera: `P2 = K·[I | t]`, so `K` is P2's left 3×3 block and
+    /// `camera_from_lidar = [I | K⁻¹·p4] · R0_rect · Tr_velo_to_cam` (the rectified camera
+    /// shifted to camera 2's centre, so the near plane is the real one).
+    pub fn from_kitti(calib: &KittiCalib, image_path: Option<PathBuf>) -> Self {
+        let k = calib.p2.fixed_view::<3, 3>(0, 0).into_owned();
+        let t = k.try_inverse().map(|ki| ki * calib.p2.column(3)).unwrap_or_else(nalgebra::Vector3::zeros);
+        let mut shift = nalgebra::Matrix4::identity();
+        shift.fixed_view_mut::<3, 1>(0, 3).copy_from(&t);
+        let m = shift * calib.rect_from_lidar();
+        Self {
+            name: "image_2".into(),
+            image_path,
+            camera_from_lidar: std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)])),
+            intrinsics: std::array::from_fn(|i| std::array::from_fn(|j| k[(i, j)])),
+            distortion: Vec::new(),
+            image_size: Some([1242, 375]),
+        }
+    }
+}
+
 /// Everything about a frame except its points: what a dataset index holds, cheap to load for
 /// evaluation and statistics.
 #[derive(Debug, Clone, PartialEq)]
@@ -105,6 +144,8 @@ pub struct FrameInfo {
     pub dont_care: Vec<[f64; 4]>,
     pub world_from_lidar: Option<Pose>,
     pub calib: Option<Calib>,
+    /// The frame's cameras (empty when the dataset has none).
+    pub cameras: Vec<CameraInfo>,
     /// The point file and its float32 channels (x, y, z, intensity, extras…).
     pub points_path: PathBuf,
     pub point_channels: Vec<String>,
@@ -121,6 +162,7 @@ impl FrameInfo {
             dont_care: Vec::new(),
             world_from_lidar: None,
             calib: None,
+            cameras: Vec::new(),
             points_path,
             point_channels: PointCloud::XYZI.iter().map(|s| s.to_string()).collect(),
         }

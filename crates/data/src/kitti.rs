@@ -11,7 +11,7 @@ use pi3det_geometry::kitti::{alpha_from_lidar, fake_camera_box, CameraBox, Kitti
 
 use crate::dataset::{Dataset, Format};
 use crate::error::DataError;
-use crate::frame::{Calib, FrameInfo, KittiFields, Object, Platform};
+use crate::frame::{Calib, CameraInfo, FrameInfo, KittiFields, Object, Platform};
 use crate::io::write_atomic;
 
 pub struct KittiDataset {
@@ -74,6 +74,8 @@ impl Dataset for KittiDataset {
                 }
             }
         }
+        let image = self.root.join("image_2").join(format!("{id}.png"));
+        info.cameras.push(CameraInfo::from_kitti(&calib, Some(image)));
         info.calib = Some(Calib::Kitti(calib));
         Ok(info)
     }

@@ -15,5 +15,5 @@ pub mod summary;
 
 pub use dataset::{open, Dataset, Format};
 pub use error::DataError;
-pub use frame::{Calib, Frame, FrameInfo, KittiFields, Object, Platform};
+pub use frame::{Calib, CameraInfo, Frame, FrameInfo, KittiFields, Object, Platform};
 pub use points::{read_bin, write_bin, PointCloud};

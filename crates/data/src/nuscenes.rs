@@ -10,7 +10,7 @@ use pi3det_geometry::{Box3d, Pose, PoseExt};
 use crate::dataset::{Dataset, Format};
 use crate::error::DataError;
 use crate::fields::Record;
-use crate::frame::{FrameInfo, Object, Platform};
+use crate::frame::{CameraInfo, FrameInfo, Object, Platform};
 use crate::pickle::{self, Value};
 
 pub struct NuscenesDataset {
@@ -82,6 +82,9 @@ fn parse_sample(
         let world_from_ego = Pose::try_from_matrix(&rec.square::<4>(e2g, "ego2global")?).map_err(|e| rec.err(e))?;
         info.world_from_lidar = Some(world_from_ego * ego_from_lidar);
     }
+    if let Some(images) = s.get("images").filter(|v| !v.is_none()) {
+        info.cameras = parse_cameras(&rec, root, images)?;
+    }
     let instances = match s.get("instances") {
         Some(v) => v.as_list().ok_or_else(|| rec.err("'instances' should be a list"))?,
         None => &[],
@@ -101,6 +104,61 @@ fn parse_sample(
     Ok(info)
 }
 
+/// The image of a camera: mmdet3d writes a bare file name (its `data_prefix` adds
+/// `samples/CAM_X/`) or a path relative to the data root. The first candidate that exists, else
+/// the first one.
+fn resolve_image(root: &Path, camera: &str, img_path: &str) -> PathBuf {
+    let rel = Path::new(img_path);
+    let mut candidates = vec![root.join(rel), root.join("samples").join(camera).join(rel)];
+    if let Some(name) = rel.file_name() {
+        candidates.push(root.join(name));
+        candidates.push(root.join("samples").join(camera).join(name));
+    }
+    candidates.iter().find(|p| p.exists()).cloned().unwrap_or_else(|| candidates.swap_remove(0))
+}
+
+/// `images`: camera name → `img_path`, `cam2img` (3×3, or 3×4 whose last column is folded into
+/// the extrinsics), `lidar2cam` (4×4). Cameras without `cam2img` or `lidar2cam` (mmdet3d leaves
+/// them out for samples without that camera) are skipped; malformed ones are an error.
+fn parse_cameras(rec: &Record, root: &Path, images: &Value) -> Result<Vec<CameraInfo>, DataError> {
+    let dict = images.as_dict().ok_or_else(|| rec.err("'images' should be a dict"))?;
+    let mut cameras = Vec::new();
+    for (key, cam) in dict.iter() {
+        let Some(name) = key.as_str() else { continue };
+        let (Some(c2i), Some(l2c)) = (cam.get("cam2img"), cam.get("lidar2cam")) else { continue };
+        let r = Record { path: rec.path, what: format!("{}.images.{name}", rec.what) };
+        let mut camera_from_lidar = r.square::<4>(l2c, "lidar2cam")?;
+        let rows = r.matrix(c2i, "cam2img", 3)?;
+        if !(3..=4).contains(&rows.len()) || rows.iter().any(|row| row.len() != rows[0].len()) || rows[0].len() > 4 {
+            return Err(r.err("'cam2img' should be 3x3, 3x4 or 4x4"));
+        }
+        let intrinsics: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| rows[i][j]));
+        if rows[0].len() == 4 {
+            // [K | p4]: the camera centre is shifted by K⁻¹·p4 (as KITTI's P2).
+            let k = nalgebra::Matrix3::from_fn(|i, j| intrinsics[i][j]);
+            let p4 = nalgebra::Vector3::new(rows[0][3], rows[1][3], rows[2][3]);
+            let t = k.try_inverse().ok_or_else(|| r.err("'cam2img' is singular"))? * p4;
+            // [I | t] · M adds t_i · (M's last row) to row i.
+            let last = camera_from_lidar[3];
+            for (i, row) in camera_from_lidar.iter_mut().take(3).enumerate() {
+                for (v, l) in row.iter_mut().zip(last) {
+                    *v += t[i] * l;
+                }
+            }
+        }
+        let image_path = r.opt_str(cam, "img_path")?.map(|p| resolve_image(root, name, &p));
+        cameras.push(CameraInfo {
+            name: name.to_string(),
+            image_path,
+            camera_from_lidar,
+            intrinsics,
+            distortion: Vec::new(),
+            image_size: Some([1600, 900]),
+        });
+    }
+    Ok(cameras)
+}
+
 impl Dataset for NuscenesDataset {
     fn format(&self) -> Format {
         Format::Nuscenes
@@ -116,5 +174,67 @@ impl Dataset for NuscenesDataset {
             .get(index)
             .cloned()
             .ok_or_else(|| DataError::invalid(&self.root, format!("frame index {index} out of range")))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rows(m: &[&[f64]]) -> Value {
+        Value::List(m.iter().map(|r| Value::List(r.iter().map(|&x| Value::Float(x)).collect())).collect())
+    }
+
+    fn info(images: Value) -> Value {
+        let sample = Value::dict([
+            ("token", Value::Str("t0".into())),
+            ("lidar_points", Value::dict([("lidar_path", Value::Str("x.bin".into()))])),
+            ("images", images),
+        ]);
+        Value::dict([
+            ("metainfo", Value::dict([("categories", Value::dict([("car", Value::Int(0))]))])),
+            ("data_list", Value::List(vec![sample])),
+        ])
+    }
+
+    const ID4: &[&[f64]] = &[&[1., 0., 0., 0.], &[0., 1., 0., 0.], &[0., 0., 1., 0.], &[0., 0., 0., 1.]];
+
+    #[test]
+    fn cameras_with_3x4_cam2img_fold_the_offset_into_the_extrinsics() {
+        // [K | K·(0.5, 0, 0)] with K = diag(100, 100, 1): the camera sits 0.5 m along −x.
+        let k34: &[&[f64]] = &[&[100., 0., 10., 50.], &[0., 100., 20., 0.], &[0., 0., 1., 0.]];
+        let images = Value::dict([
+            (
+                "CAM_A",
+                Value::dict([
+                    ("img_path", Value::Str("a.jpg".into())),
+                    ("cam2img", rows(k34)),
+                    ("lidar2cam", rows(ID4)),
+                ]),
+            ),
+            // mmdet3d leaves a missing camera's matrices out: skipped.
+            ("CAM_B", Value::dict([("img_path", Value::Str("b.jpg".into()))])),
+        ]);
+        let dir = Path::new("/nonexistent");
+        let ds = NuscenesDataset::from_value(&dir.join("i.pkl"), &info(images), None).unwrap();
+        let f = ds.info(0).unwrap();
+        assert_eq!(f.cameras.len(), 1);
+        let c = &f.cameras[0];
+        assert_eq!(c.name, "CAM_A");
+        assert_eq!(c.intrinsics, [[100., 0., 10.], [0., 100., 20.], [0., 0., 1.]]);
+        assert!((c.camera_from_lidar[0][3] - 0.5).abs() < 1e-12, "{:?}", c.camera_from_lidar);
+        assert_eq!(c.camera_from_lidar[1][3], 0.0);
+        // Not found anywhere: the first candidate (beside the info file) is kept.
+        assert_eq!(c.image_path.as_deref(), Some(dir.join("a.jpg").as_path()));
+    }
+
+    #[test]
+    fn malformed_cam2img_names_the_camera_and_key() {
+        let images = Value::dict([(
+            "CAM_A",
+            Value::dict([("cam2img", rows(&[&[1., 0.], &[0., 1.]])), ("lidar2cam", rows(ID4))]),
+        )]);
+        let e = NuscenesDataset::from_value(Path::new("i.pkl"), &info(images), None).err().unwrap().to_string();
+        assert!(e.contains("images.CAM_A") && e.contains("cam2img"), "{e}");
     }
 }

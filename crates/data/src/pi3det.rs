@@ -10,7 +10,7 @@ use pi3det_geometry::{Box3d, Pose, PoseExt};
 use crate::dataset::{Dataset, Format};
 use crate::error::DataError;
 use crate::fields::Record;
-use crate::frame::{Calib, Frame, FrameInfo, Object, Platform};
+use crate::frame::{Calib, CameraInfo, Frame, FrameInfo, Object, Platform};
 use crate::io::write_atomic;
 use crate::pickle::{self, NdArray, Value};
 use crate::points::write_bin;
@@ -134,7 +134,19 @@ fn parse_info(root: &Path, file: &Path, index: usize, v: &Value) -> Result<Frame
         info.world_from_lidar = Some(Pose::try_from_matrix(&m).map_err(|e| rec.err(e))?);
     }
     if let Some(c) = v.get("calib").filter(|c| !c.is_none()) {
-        info.calib = Some(parse_calib(&rec, c)?);
+        let calib = parse_calib(&rec, c)?;
+        if let Calib::Pinhole { camera_from_lidar, intrinsics, distortion } = &calib {
+            info.cameras.push(CameraInfo {
+                name: "camera".into(),
+                image_path: rec.opt_str(v, "image_path")?.map(|p| root.join(p)),
+                camera_from_lidar: *camera_from_lidar,
+                intrinsics: *intrinsics,
+                distortion: distortion.clone(),
+                // The released frames' camera; the image's own size wins when it exists.
+                image_size: Some([1280, 800]),
+            });
+        }
+        info.calib = Some(calib);
     }
     if let Some(annos) = v.get("annos").filter(|a| !a.is_none()) {
         info.objects = parse_annos(&rec, annos)?;
@@ -206,7 +218,13 @@ impl Pi3detWriter {
         let info = &frame.info;
         let rel = format!("training/point_cloud/{}.bin", info.id);
         write_bin(&self.root.join(&rel), &frame.points.to_xyzi(), self.overwrite)?;
-        self.infos.push(info_value(info, &rel));
+        let mut value = info_value(info, &rel);
+        // The camera image is not copied: its path is kept, relative to the root when inside it.
+        if let (Value::Dict(d), Some(image)) = (&mut value, info.cameras.first().and_then(|c| c.image_path.as_ref())) {
+            let image = image.strip_prefix(&self.root).unwrap_or(image);
+            d.push((Value::Str("image_path".into()), Value::Str(image.to_string_lossy().into_owned())));
+        }
+        self.infos.push(value);
         Ok(())
     }
 
