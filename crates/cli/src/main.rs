@@ -1,7 +1,7 @@
 //! `pi3det`: perspective-invariant LiDAR 3D object detection (Pi3DET) from the command line.
 //!
 //! This binary does not link libtorch: the detector commands (`train`, `detect`, `adapt`,
-//! `demo`, `bench nn`) are listed here but run in `pi3det-torch` (crates/pipelines), see [`cmd::torch`].
+//! `autolabel`, `demo`, `bench nn`) are listed here but run in `pi3det-torch` (crates/pipelines), see [`cmd::torch`].
 
 mod cmd;
 
@@ -40,6 +40,8 @@ enum Command {
     Detect(Forwarded),
     /// Pi3DET-Net: adapt a source-trained detector to a target platform without target labels.
     Adapt(Forwarded),
+    /// Label frames with several detectors × test-time augmentation, box fusion and tracking.
+    Autolabel(Forwarded),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
     Demo(Forwarded),
     /// Benchmarks that print a table.
@@ -69,6 +71,7 @@ fn main() -> std::process::ExitCode {
         Command::Train(_)
             | Command::Detect(_)
             | Command::Adapt(_)
+            | Command::Autolabel(_)
             | Command::Demo(_)
             | Command::Bench(BenchCommand::Nn(_))
     ) {
@@ -98,6 +101,7 @@ fn main() -> std::process::ExitCode {
         Command::Train(_)
         | Command::Detect(_)
         | Command::Adapt(_)
+        | Command::Autolabel(_)
         | Command::Demo(_)
         | Command::Bench(BenchCommand::Nn(_)) => {
             unreachable!("handed to pi3det-torch above")

@@ -218,13 +218,34 @@ impl Pi3detWriter {
         let info = &frame.info;
         let rel = format!("training/point_cloud/{}.bin", info.id);
         write_bin(&self.root.join(&rel), &frame.points.to_xyzi(), self.overwrite)?;
-        let mut value = info_value(info, &rel);
+        self.push_info(info, &rel);
+        Ok(())
+    }
+
+    fn push_info(&mut self, info: &FrameInfo, rel_points: &str) {
+        let mut value = info_value(info, rel_points);
         // The camera image is not copied: its path is kept, relative to the root when inside it.
         if let (Value::Dict(d), Some(image)) = (&mut value, info.cameras.first().and_then(|c| c.image_path.as_ref())) {
             let image = image.strip_prefix(&self.root).unwrap_or(image);
             d.push((Value::Str("image_path".into()), Value::Str(image.to_string_lossy().into_owned())));
         }
         self.infos.push(value);
+    }
+
+    /// Adds a frame whose point file already exists: the info references it (relative to the
+    /// root when inside it, else by its absolute path) and nothing is copied — a new label set
+    /// over the same points.
+    pub fn write_info(&mut self, info: &FrameInfo) -> Result<(), DataError> {
+        if !info.points_path.is_file() {
+            return Err(DataError::io(
+                &info.points_path,
+                std::io::Error::new(std::io::ErrorKind::NotFound, "point file of the label set not found"),
+            ));
+        }
+        let points = std::fs::canonicalize(&info.points_path).map_err(|e| DataError::io(&info.points_path, e))?;
+        let root = std::fs::canonicalize(&self.root).unwrap_or_else(|_| self.root.clone());
+        let rel = points.strip_prefix(&root).unwrap_or(&points).to_string_lossy().into_owned();
+        self.push_info(info, &rel);
         Ok(())
     }
 

@@ -5,10 +5,12 @@
 //!
 //! | module | what |
 //! | --- | --- |
+//! | [`autolabel`] | `pi3det autolabel`: checkpoints × test-time augmentation → box fusion → tracking → a new label set |
 //! | [`demo`] | `pi3det demo`: simulate vehicle / drone / quadruped data, train on the vehicle, evaluate on all three; several seeds with mean ± std |
 //! | [`frames`] | simulated frames where a command needs some and was given none (`bench nn`) |
 //!
 //! Later adaptation and benchmark drivers belong here too.
 
+pub mod autolabel;
 pub mod demo;
 pub mod frames;

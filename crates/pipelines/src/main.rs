@@ -1,4 +1,4 @@
-//! `pi3det-torch`: the detector commands of `pi3det` (`train`, `detect`, `adapt`, `demo`,
+//! `pi3det-torch`: the detector commands of `pi3det` (`train`, `detect`, `adapt`, `autolabel`, `demo`,
 //! `bench nn`), the
 //! part that links libtorch. `pi3det` hands these commands over with their arguments verbatim, so
 //! `pi3det train --help` is this binary's help; it can also be run directly.
@@ -29,6 +29,8 @@ enum Command {
     Detect(nn::DetectArgs),
     /// Pi3DET-Net: adapt a source-trained detector to a target platform without target labels.
     Adapt(nn::AdaptArgs),
+    /// Label frames with several detectors × test-time augmentation, box fusion and tracking.
+    Autolabel(pi3det_pipelines::autolabel::AutolabelArgs),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
     Demo(pi3det_pipelines::demo::DemoArgs),
     /// Benchmarks that print a table.
@@ -57,6 +59,7 @@ fn main() -> std::process::ExitCode {
         Command::Train(args) => nn::run_train(args).map_err(anyhow::Error::from),
         Command::Detect(args) => nn::run_detect(args).map_err(anyhow::Error::from),
         Command::Adapt(args) => nn::run_adapt(args).map(|_| ()).map_err(anyhow::Error::from),
+        Command::Autolabel(args) => pi3det_pipelines::autolabel::run_autolabel(args),
         Command::Demo(args) => pi3det_pipelines::demo::run_demo(args).map(|_| ()),
         Command::Bench(BenchCommand::Nn(args)) => nn::run_bench_nn(args, &mut |n| {
             pi3det_pipelines::frames::vehicle_frames(n).map_err(|e| NnError::Input(format!("simulation: {e}")))

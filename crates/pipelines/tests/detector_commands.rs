@@ -150,6 +150,46 @@ fn demo_then_detect_then_eval() {
     let b = evaluate(&val, &det.join("detections.jsonl"));
     assert_eq!(a.overall.num_frames, 4);
     assert_eq!(serde_json::to_value(&a.overall).unwrap(), serde_json::to_value(&b.overall).unwrap());
+
+    // autolabel: two checkpoints × two views → fusion → tracking → a label set over the points.
+    let al = dir.join("labels");
+    let pp_ckpt = s(&dir.join("pp/final.safetensors"));
+    let al_args = [
+        "autolabel",
+        "--data",
+        &val_s,
+        "--ckpt",
+        &s(&ckpt),
+        "--ckpt",
+        &pp_ckpt,
+        "--tta",
+        "none,flip",
+        "--out",
+        &s(&al),
+        "--device",
+        "cpu",
+        "--min-score",
+        "0.0",
+    ];
+    let out = ok(&torch(&al_args), "autolabel");
+    assert!(out.contains("| fused |") && out.contains("| tracked |"), "no quality rows in\n{out}");
+    let report: Value = serde_json::from_slice(&std::fs::read(al.join("autolabel.json")).unwrap()).unwrap();
+    assert_eq!(report["inputs"].as_array().map(Vec::len), Some(4));
+    assert_eq!(report["frames"], 4);
+    assert_eq!(std::fs::read_dir(al.join("detections")).unwrap().count(), 4);
+    let original = pi3det_data::open(&val.join("pi3det_infos_val.pkl")).unwrap();
+    let labelled = pi3det_data::open(&al.join("pi3det_infos_val.pkl")).unwrap();
+    assert_eq!(labelled.len(), original.len());
+    let labels = pi3det_eval::Detections::read(&al.join("labels.jsonl")).unwrap();
+    for i in 0..labelled.len() {
+        let (a, b) = (original.info(i).unwrap(), labelled.info(i).unwrap());
+        // The points are the original files, untouched; the boxes are the final labels.
+        assert_eq!(std::fs::canonicalize(&a.points_path).unwrap(), std::fs::canonicalize(&b.points_path).unwrap());
+        assert_eq!(b.objects.len(), labels.frames.get(&b.id).map_or(0, Vec::len));
+        assert_eq!((a.sequence, a.timestamp_s), (b.sequence, b.timestamp_s));
+    }
+    let again = torch(&al_args);
+    assert!(!again.status.success() && String::from_utf8_lossy(&again.stderr).contains("--overwrite"));
 }
 
 #[test]

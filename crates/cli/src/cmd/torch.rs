@@ -1,5 +1,5 @@
-//! The detector commands (`train`, `detect`, `adapt`, `demo`, `bench nn`) run in a separate executable,
-//! `pi3det-torch` (crates/pipelines), the only one that links libtorch: `pi3det` itself never
+//! The detector commands (`train`, `detect`, `adapt`, `autolabel`, `demo`, `bench nn`) run in a
+//! separate executable, `pi3det-torch` (crates/pipelines), the only one that links libtorch: `pi3det` itself never
 //! loads it, so the other commands start in milliseconds. `pi3det` lists these commands in its
 //! help and hands each over with its arguments verbatim (on Unix by `exec`, so the exit status,
 //! signals and terminal are the child's own).
@@ -40,7 +40,10 @@ pub fn is_help_for_forwarded(args: &[OsString]) -> bool {
             break;
         }
     }
-    matches!(words.as_slice(), ["help", "train" | "detect" | "adapt" | "demo", ..] | ["help", "bench", "nn"])
+    matches!(
+        words.as_slice(),
+        ["help", "train" | "detect" | "adapt" | "autolabel" | "demo", ..] | ["help", "bench", "nn"]
+    )
 }
 
 fn is_file(p: &Path) -> bool {
