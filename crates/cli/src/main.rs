@@ -28,6 +28,10 @@ enum Command {
     Eval(pi3det_eval::cli::EvalArgs),
     /// Platform-discrepancy statistics, tables and figures (paper §3.3, Fig. 2), with pose-free attitude.
     Stats(pi3det_analysis::cli::StatsArgs),
+    /// Write one self-contained HTML page (WebGL2) showing points, ground truth and detections.
+    View(pi3det_viewer::cli::ViewArgs),
+    /// Serve the viewer with box editing on loopback; saves write a new label set beside the data.
+    Annotate(pi3det_viewer::cli::AnnotateArgs),
     /// Train a detector (PointPillars, anchor or center head) from a TOML config.
     Train(Forwarded),
     /// Run a trained detector over a dataset; write JSON lines and result.pkl, with latency.
@@ -80,6 +84,8 @@ fn main() -> std::process::ExitCode {
         Command::Simulate(args) => pi3det_sim::cli::run(args).map_err(anyhow::Error::from),
         Command::Eval(args) => pi3det_eval::cli::run(args).map_err(anyhow::Error::from),
         Command::Stats(args) => pi3det_analysis::cli::run(args).map_err(anyhow::Error::from),
+        Command::View(args) => pi3det_viewer::cli::run_view(args).map_err(anyhow::Error::from),
+        Command::Annotate(args) => pi3det_viewer::cli::run_annotate(args).map_err(anyhow::Error::from),
         Command::Bench(BenchCommand::Sim(args)) => pi3det_sim::cli::run_bench(args).map_err(anyhow::Error::from),
         Command::Train(_)
         | Command::Detect(_)
