@@ -53,6 +53,7 @@
   const editable = 'det';
   if (edit) $('detName').textContent = 'labels (editable)';
   if (edit && frames.every((f) => f.gt.length === 0)) $('showGt').parentElement.hidden = true;
+  if (!edit && frames.every((f) => f.det.length === 0)) $('showDet').parentElement.hidden = true;
 
   // ---------------------------------------------------------------- GL
   const canvas = $('gl');
