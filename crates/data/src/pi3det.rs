@@ -240,8 +240,8 @@ pub fn write_infos(path: &Path, infos: &[FrameInfo], overwrite: bool) -> Result<
             Ok(info_value(info, rel))
         })
         .collect::<Result<Vec<_>, DataError>>()?;
-    let bytes =
-        pickle::to_vec(&Value::List(values)).map_err(|source| DataError::Pickle { path: path.to_path_buf(), source })?;
+    let bytes = pickle::to_vec(&Value::List(values))
+        .map_err(|source| DataError::Pickle { path: path.to_path_buf(), source })?;
     write_atomic(path, &bytes, overwrite)
 }
 

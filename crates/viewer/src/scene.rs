@@ -150,7 +150,10 @@ impl Source {
             let read = Detections::read(det)?;
             for (id, list) in &read.frames {
                 let &i = by_id.get(id.as_str()).ok_or_else(|| {
-                    ViewerError::invalid(det, format!("detections for frame {id:?}, which is not in {}", data.display()))
+                    ViewerError::invalid(
+                        det,
+                        format!("detections for frame {id:?}, which is not in {}", data.display()),
+                    )
                 })?;
                 dets[i] = list
                     .iter()
@@ -162,7 +165,12 @@ impl Source {
                                 format!("frame {id} detection {k}: no LiDAR-frame box (the viewer reads boxes_lidar)"),
                             )
                         })?;
-                        Ok(LabelBox { name: d.name.clone(), box3d: b.to_array(), score: Some(d.score), num_points: None })
+                        Ok(LabelBox {
+                            name: d.name.clone(),
+                            box3d: b.to_array(),
+                            score: Some(d.score),
+                            num_points: None,
+                        })
                     })
                     .collect::<Result<_, ViewerError>>()?;
             }
@@ -309,7 +317,8 @@ mod tests {
 
     #[test]
     fn label_boxes_reject_bad_numbers() {
-        let mut b = LabelBox { name: "Car".into(), box3d: [1., 2., 3., 4., 2., 1.5, 0.], score: None, num_points: None };
+        let mut b =
+            LabelBox { name: "Car".into(), box3d: [1., 2., 3., 4., 2., 1.5, 0.], score: None, num_points: None };
         assert!(b.to_object().is_ok());
         b.box3d[3] = -1.0;
         assert!(b.to_object().unwrap_err().contains("negative") || b.to_object().is_err());

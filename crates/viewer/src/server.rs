@@ -207,7 +207,9 @@ impl EditServer {
             };
             let header = |k: &str, v: &str| tiny_http::Header::from_bytes(k.as_bytes(), v.as_bytes()).ok();
             let mut resp = tiny_http::Response::from_data(reply.body).with_status_code(reply.status);
-            for h in [header("Content-Type", reply.content_type), header("Cache-Control", "no-store")].into_iter().flatten() {
+            for h in
+                [header("Content-Type", reply.content_type), header("Cache-Control", "no-store")].into_iter().flatten()
+            {
                 resp.add_header(h);
             }
             if let Err(e) = req.respond(resp) {

@@ -48,7 +48,8 @@ fn kitti_page_draws_every_point_and_box() {
             o.box3d.x += 0.5;
             o.score = Some(0.8);
         }
-        lines += &serde_json::to_string(&pi3det_eval::JsonlFrame::from_objects(src.infos[i].id.clone(), &objs)).unwrap();
+        lines +=
+            &serde_json::to_string(&pi3det_eval::JsonlFrame::from_objects(src.infos[i].id.clone(), &objs)).unwrap();
         lines.push('\n');
     }
     std::fs::write(&det, lines).unwrap();

@@ -771,7 +771,11 @@
     // ?ops=[...]&save=1: apply edits and save once loaded (used by the browser tests).
     if (edit && params.has('ops')) {
       try {
-        for (const op of JSON.parse(params.get('ops'))) applyEdit(op);
+        for (const op of JSON.parse(params.get('ops'))) {
+          if (op.op === 'undo') undoRedo(undoStack, redoStack);
+          else if (op.op === 'redo') undoRedo(redoStack, undoStack);
+          else applyEdit(op);
+        }
         if (params.get('save') === '1') await save();
         setStatus({ selftest: 'done' });
       } catch (e) {
