@@ -15,10 +15,11 @@ pub fn shared(rel: &str) -> PathBuf {
 
 /// Chromium, or `None` after printing why the browser part of a test is skipped.
 pub fn chromium() -> Option<PathBuf> {
-    let candidates = std::env::var_os("PI3DET_CHROMIUM")
-        .map(PathBuf::from)
-        .into_iter()
-        .chain(["/usr/bin/chromium", "/usr/bin/chromium-browser", "/usr/bin/google-chrome"].map(PathBuf::from));
+    // PI3DET_CHROMIUM names the browser (a path that does not exist skips the browser tests).
+    let candidates: Vec<PathBuf> = match std::env::var_os("PI3DET_CHROMIUM") {
+        Some(p) => vec![PathBuf::from(p)],
+        None => ["/usr/bin/chromium", "/usr/bin/chromium-browser", "/usr/bin/google-chrome"].map(PathBuf::from).into(),
+    };
     for c in candidates {
         if c.is_file() {
             return Some(c);
