@@ -7,6 +7,9 @@ use crate::error::ViewerError;
 use crate::scene::{ColorBy, Source};
 use crate::server::{EditServer, Editor};
 
+/// Without `--frames`, a static page holds at most this many frames (each ~1 MB of text).
+pub const DEFAULT_MAX_FRAMES: usize = 100;
+
 /// Write one self-contained HTML page (WebGL2, no network) showing frames, their ground-truth
 /// boxes and optional detections.
 #[derive(clap::Args, Debug, Clone, PartialEq)]
@@ -16,7 +19,7 @@ pub struct ViewArgs {
     /// Detections to draw beside the ground truth: JSON lines (.jsonl) or an OpenPCDet result.pkl.
     #[arg(long, value_name = "DETECTIONS")]
     pub det: Option<PathBuf>,
-    /// Frames (dataset indices): A..B (B excluded), A..=B, A.. or A [default: all].
+    /// Frames (dataset indices): A..B (B excluded), A..=B, A.. or A [default: all, at most 100].
     #[arg(long, value_name = "RANGE")]
     pub frames: Option<String>,
     /// At most this many points per frame (an even subsample).
@@ -64,7 +67,15 @@ pub struct AnnotateArgs {
 
 /// Runs `pi3det view`.
 pub fn run_view(args: &ViewArgs) -> Result<(), ViewerError> {
-    let src = Source::open(&args.data, args.det.as_deref(), args.frames.as_deref())?;
+    let mut src = Source::open(&args.data, args.det.as_deref(), args.frames.as_deref())?;
+    if args.frames.is_none() && src.shown.len() > DEFAULT_MAX_FRAMES {
+        tracing::warn!(
+            "{}: showing frames 0..{DEFAULT_MAX_FRAMES} of {}; pass --frames to choose others",
+            args.data.display(),
+            src.shown.len()
+        );
+        src.shown = 0..DEFAULT_MAX_FRAMES;
+    }
     let scene = crate::write_page(&src, args.max_points, args.color, &args.out, args.overwrite)?;
     let points: usize = scene.frames.iter().filter_map(|f| f.points.as_ref()).map(|p| p.n).sum();
     tracing::info!("wrote {} ({} frames, {points} points)", args.out.display(), scene.frames.len());

@@ -20,7 +20,7 @@ pub use error::ViewerError;
 pub use labels::{LabelSetWriter, SavedSet};
 pub use page::render;
 pub use scene::{build_scene, ColorBy, LabelBox, Scene, Source};
-pub use server::{EditServer, Editor, Reply};
+pub use server::{EditServer, Editor, Reply, Request};
 
 /// Writes the static page for `src`; refuses to replace `out` unless `overwrite`.
 pub fn write_page(

@@ -30,6 +30,53 @@ pub struct FrameEdit {
     pub objects: Vec<LabelBox>,
 }
 
+/// What [`Editor::handle`] looks at in a request.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Request {
+    pub method: String,
+    pub url: String,
+    pub content_type: Option<String>,
+    pub origin: Option<String>,
+    pub host: Option<String>,
+}
+
+impl Request {
+    /// A JSON request as the page sends it.
+    pub fn json(method: &str, url: &str) -> Self {
+        Self {
+            method: method.into(),
+            url: url.into(),
+            content_type: Some("application/json".into()),
+            ..Self::default()
+        }
+    }
+}
+
+fn is_loopback_host(host: &str) -> bool {
+    let name = match host.strip_prefix('[') {
+        Some(v6) => v6.split(']').next().unwrap_or(""),
+        None => host.rsplit_once(':').map_or(host, |(h, _)| h),
+    };
+    name.eq_ignore_ascii_case("localhost") || name.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback())
+}
+
+/// Another web site open in the same browser could otherwise post edits to the loopback
+/// server: a JSON content type forces the browser's CORS preflight (which this server never
+/// grants), and an Origin, when sent, must be the page's own.
+fn refuse_cross_site(req: &Request) -> Option<Reply> {
+    let json =
+        req.content_type.as_deref().is_some_and(|c| c.trim().to_ascii_lowercase().starts_with("application/json"));
+    if !json {
+        return Some(Reply::error(415, "edits must be sent as Content-Type: application/json"));
+    }
+    if let (Some(origin), Some(host)) = (&req.origin, &req.host) {
+        if origin != &format!("http://{host}") {
+            return Some(Reply::error(403, format!("request from another origin ({origin})")));
+        }
+    }
+    None
+}
+
 /// An HTTP answer before it is sent.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Reply {
@@ -56,13 +103,15 @@ pub struct Editor {
     /// Current labels of every dataset frame (from the ground truth, or from `--det`).
     labels: Vec<Vec<LabelBox>>,
     set: String,
+    /// Refuse requests whose Host is not a loopback name (unless serving with --allow-remote).
+    loopback_only: bool,
 }
 
 impl Editor {
     pub fn new(src: Source, set: &str, max_points: usize, color: ColorBy) -> Result<Self, ViewerError> {
         let writer = LabelSetWriter::new(&src, set)?;
         let labels = if src.has_dets { src.dets.clone() } else { (0..src.infos.len()).map(|i| src.gt(i)).collect() };
-        Ok(Self { src, writer, max_points, color, labels, set: set.to_string() })
+        Ok(Self { src, writer, max_points, color, labels, set: set.to_string(), loopback_only: true })
     }
 
     pub fn writer(&self) -> &LabelSetWriter {
@@ -98,9 +147,18 @@ impl Editor {
     }
 
     /// Answers one request; never panics on what the client sends.
-    pub fn handle(&mut self, method: &str, url: &str, body: &[u8]) -> Reply {
-        let path = url.split('?').next().unwrap_or("");
-        match (method, path) {
+    pub fn handle(&mut self, req: &Request, body: &[u8]) -> Reply {
+        let path = req.url.split('?').next().unwrap_or("");
+        if self.loopback_only && !req.host.as_deref().is_none_or(is_loopback_host) {
+            // A DNS-rebound name pointing at 127.0.0.1 would otherwise pass as same-origin.
+            return Reply::error(403, format!("Host {:?} is not a loopback name", req.host.as_deref().unwrap_or("")));
+        }
+        if req.method == "POST" {
+            if let Some(refusal) = refuse_cross_site(req) {
+                return refusal;
+            }
+        }
+        match (req.method.as_str(), path) {
             ("GET", "/" | "/index.html") => {
                 Reply { status: 200, content_type: "text/html; charset=utf-8", body: self.page().into_bytes() }
             }
@@ -180,8 +238,9 @@ pub fn resolve_listen(listen: &str, allow_remote: bool) -> Result<SocketAddr, Vi
 }
 
 impl EditServer {
-    pub fn bind(editor: Editor, listen: &str, allow_remote: bool) -> Result<Self, ViewerError> {
+    pub fn bind(mut editor: Editor, listen: &str, allow_remote: bool) -> Result<Self, ViewerError> {
         let addr = resolve_listen(listen, allow_remote)?;
+        editor.loopback_only = !allow_remote;
         let http = tiny_http::Server::http(addr)
             .map_err(|e| ViewerError::Listen { addr: listen.to_string(), message: e.to_string() })?;
         let addr = http.server_addr().to_ip().unwrap_or(addr);
@@ -201,8 +260,18 @@ impl EditServer {
                 Err(e) => Reply::error(400, format!("reading the request: {e}")),
                 Ok(_) if body.len() as u64 > MAX_BODY => Reply::error(413, "request too large"),
                 Ok(_) => {
+                    let header = |name: &'static str| {
+                        req.headers().iter().find(|h| h.field.equiv(name)).map(|h| h.value.as_str().to_string())
+                    };
+                    let r = Request {
+                        method: req.method().as_str().to_string(),
+                        url: req.url().to_string(),
+                        content_type: header("Content-Type"),
+                        origin: header("Origin"),
+                        host: header("Host"),
+                    };
                     let mut ed = self.editor.lock().unwrap_or_else(|p| p.into_inner());
-                    ed.handle(req.method().as_str(), req.url(), &body)
+                    ed.handle(&r, &body)
                 }
             };
             let header = |k: &str, v: &str| tiny_http::Header::from_bytes(k.as_bytes(), v.as_bytes()).ok();
@@ -220,5 +289,20 @@ impl EditServer {
 
     pub fn unblock(&self) {
         self.http.unblock();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::is_loopback_host;
+
+    #[test]
+    fn loopback_hosts() {
+        for h in ["127.0.0.1:8080", "localhost:1", "LOCALHOST", "[::1]:80", "127.3.4.5"] {
+            assert!(is_loopback_host(h), "{h}");
+        }
+        for h in ["evil.example:8080", "10.0.0.1:80", "[2001:db8::1]:80", ""] {
+            assert!(!is_loopback_host(h), "{h}");
+        }
     }
 }

@@ -94,6 +94,21 @@ fn malformed_edits_get_400_and_change_nothing() {
         assert!(serde_json::from_str::<serde_json::Value>(&reply).unwrap()["error"].is_string(), "{what}: {reply}");
         assert_eq!(names(&data), before, "{what} wrote something");
     }
+    // Requests another web site could make from the annotator's browser.
+    let body = frame(good);
+    let cross = [
+        (415, format!("Host: {a}\r\nContent-Type: text/plain\r\n")),
+        (415, format!("Host: {a}\r\n")),
+        (403, format!("Host: {a}\r\nContent-Type: application/json\r\nOrigin: http://evil.example\r\n")),
+        (403, "Host: evil.example:8080\r\nContent-Type: application/json\r\n".to_string()),
+    ];
+    for (want, headers) in cross {
+        let (code, reply) = common::http_with(a, "POST", "/api/save", body.as_bytes(), &headers);
+        assert_eq!(code, want, "{headers:?}: {reply}");
+        assert_eq!(names(&data), before);
+    }
+    let same_origin = format!("Host: {a}\r\nContent-Type: application/json; charset=utf-8\r\nOrigin: http://{a}\r\n");
+    assert_eq!(common::http_with(a, "POST", "/api/save", b"[", &same_origin).0, 400, "checked, then malformed");
     // A good request after the bad ones still saves, and from the untouched labels.
     let (code, reply) = http(a, "POST", "/api/save", frame(good).as_bytes());
     assert_eq!(code, 200, "{reply}");

@@ -631,7 +631,8 @@
   const SHORTCUTS = [
     ['Mouse drag', 'orbit (bird\'s-eye: pan; Shift or right drag: pan)'], ['Wheel', 'zoom'], ['Click', 'select a box and show its fields'],
     [', / .', 'previous / next frame'], ['1 / 2 / 3', 'orbit / bird\'s-eye / follow-the-sensor camera'],
-    ['I', 'colour by height / intensity'], ['G / D', 'show ground truth / detections (labels)'], ['L', 'box labels on / off'],
+    ['I', 'colour by height / intensity'], ['G', 'show / hide ground truth'],
+    edit ? ['(checkbox)', 'show / hide the labels being edited'] : ['D', 'show / hide detections'], ['L', 'class labels on / off'],
     ['Tab / Shift+Tab', 'select next / previous box'], ['Esc', 'deselect, close help'], ['H or ?', 'this help'],
   ];
   const EDIT_SHORTCUTS = [

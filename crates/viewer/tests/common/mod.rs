@@ -76,12 +76,15 @@ pub fn status(dom: &str) -> BTreeMap<String, String> {
 
 /// One HTTP/1.0 request (no chunked replies) over a plain socket; returns the status code and body.
 pub fn http(addr: SocketAddr, method: &str, path: &str, body: &[u8]) -> (u16, String) {
+    http_with(addr, method, path, body, &format!("Host: {addr}\r\nContent-Type: application/json\r\n"))
+}
+
+/// [`http`] with the given header lines (each ending in CRLF) instead of Host and Content-Type.
+pub fn http_with(addr: SocketAddr, method: &str, path: &str, body: &[u8], headers: &str) -> (u16, String) {
     let mut s = TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
-    let head = format!(
-        "{method} {path} HTTP/1.0\r\nHost: {addr}\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n",
-        body.len()
-    );
+    let head =
+        format!("{method} {path} HTTP/1.0\r\n{headers}Connection: close\r\nContent-Length: {}\r\n\r\n", body.len());
     s.write_all(head.as_bytes()).unwrap();
     s.write_all(body).unwrap();
     let mut resp = Vec::new();
