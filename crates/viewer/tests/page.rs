@@ -57,6 +57,27 @@ fn kitti_page_draws_every_point_and_box() {
     check_in_browser(&data, None, Some("1"), "KITTI 000001");
 }
 
+/// A click on a box selects it and shows its fields (the mouse's code path, from `?pick=1`).
+#[test]
+fn clicking_a_box_shows_its_fields() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("scene.html");
+    let src = Source::open(&shared("kitti/training"), None, Some("1")).unwrap();
+    write_page(&src, 200_000, ColorBy::Height, &out, false).unwrap();
+    let Some(chromium) = chromium() else { return };
+    for camera in ["orbit", "bev", "follow"] {
+        let (dom, _) = dump_dom(&chromium, &format!("file://{}?pick=1&camera={camera}", out.display()), 20_000);
+        let s = status(&dom);
+        assert_eq!(s.get("picked").map(String::as_str), Some("gt:0"), "{camera}: {s:?}");
+        let o = &src.infos[1].objects[0];
+        let panel = &s["panel"];
+        assert!(panel.contains(&o.name) && panel.contains(&format!("{:.3}", o.box3d.x)), "{camera}: {panel}");
+        for f in ["x", "dz", "heading"] {
+            assert!(panel.contains(f), "{camera}: {panel}");
+        }
+    }
+}
+
 #[test]
 fn nuscenes_page_draws_every_point_and_box() {
     let pkl = shared("nuscenes_demo/n015-2018-07-24-11-22-45+0800.pkl");

@@ -767,8 +767,22 @@
         if (frames[k] && frames[k].id === f.frame_id) layers[k][editable] = f.objects;
       });
     }
-    setCamera('orbit');
-    await showFrame(0);
+    // ?camera=orbit|bev|follow&frame=K&help=1 pick the start (links, screenshots).
+    const camParam = params.get('camera');
+    setCamera(['orbit', 'bev', 'follow'].includes(camParam) ? camParam : 'orbit');
+    if (params.get('help') === '1') toggleHelp(true);
+    await showFrame(Number(params.get('frame')) || 0);
+    // ?pick=1: click (the same path as the mouse) at the projected centre of the first box.
+    if (params.get('pick') === '1') {
+      const layer = visibleLayers().find((l) => layers[cur][l].length);
+      const b = layer && layers[cur][layer][0].box;
+      const p = b && project([b[0], b[1], b[2]]);
+      if (p) pick(p[0], p[1]);
+      setStatus({
+        picked: selected ? selected.layer + ':' + selected.index : 'none',
+        panel: $('panel').hidden ? '' : $('panel').textContent,
+      });
+    }
     // ?ops=[...]&save=1: apply edits and save once loaded (used by the browser tests).
     if (edit && params.has('ops')) {
       try {
