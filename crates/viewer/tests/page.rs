@@ -84,6 +84,21 @@ fn nuscenes_page_draws_every_point_and_box() {
     check_in_browser(&pkl, None, None, "nuScenes demo");
 }
 
+/// Without WebGL2 the page says so in its status element instead of staying blank.
+#[test]
+fn without_webgl_the_page_reports_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("scene.html");
+    let src = Source::open(&shared("pi3det_sample"), None, Some("0")).unwrap();
+    write_page(&src, 1000, ColorBy::Height, &out, false).unwrap();
+    let Some(chromium) = chromium() else { return };
+    let url = format!("file://{}", out.display());
+    let (dom, _) = common::dump_dom_with(&chromium, &url, 5_000, &["--disable-webgl", "--disable-webgl2"]);
+    let s = status(&dom);
+    assert_eq!(s.get("state").map(String::as_str), Some("error"), "{s:?}");
+    assert!(s["error"].contains("WebGL2"), "{s:?}");
+}
+
 #[test]
 fn refuses_to_overwrite_the_page() {
     let dir = tempfile::tempdir().unwrap();

@@ -32,6 +32,11 @@ pub fn chromium() -> Option<PathBuf> {
 /// Loads `url` in headless Chromium with software WebGL and returns the DOM once the page is
 /// idle (`budget_ms` of virtual time), and the wall time the browser took.
 pub fn dump_dom(chromium: &Path, url: &str, budget_ms: u32) -> (String, Duration) {
+    dump_dom_with(chromium, url, budget_ms, &[])
+}
+
+/// [`dump_dom`] with extra browser flags.
+pub fn dump_dom_with(chromium: &Path, url: &str, budget_ms: u32, extra: &[&str]) -> (String, Duration) {
     let profile = tempfile::tempdir().unwrap();
     let t = Instant::now();
     let out = Command::new(chromium)
@@ -46,6 +51,7 @@ pub fn dump_dom(chromium: &Path, url: &str, budget_ms: u32) -> (String, Duration
             "--window-size=1280,800",
         ])
         .arg(format!("--user-data-dir={}", profile.path().display()))
+        .args(extra)
         .arg(format!("--virtual-time-budget={budget_ms}"))
         .arg("--dump-dom")
         .arg(url)
