@@ -264,3 +264,45 @@ fn an_edit_made_in_the_browser_is_saved_as_a_new_label_set() {
     let jsonl = pi3det_eval::Detections::read(&data.join("labels.edit-001.jsonl")).unwrap();
     assert_eq!(jsonl.frames["0000000"].len(), 2);
 }
+
+/// The keyboard shortcuts drive the same edits: move, rotate, resize, add + undo, copy to the
+/// next frame.
+#[test]
+fn keyboard_shortcuts_edit_the_selected_box() {
+    let Some(chromium) = chromium() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let data = sample_copy(dir.path());
+    let orig = pi3det_data::open(&data).unwrap();
+    let server = Running::start(&data, None);
+    let ops = serde_json::json!([
+        {"op": "select", "index": 0},
+        {"op": "key", "code": "KeyW"},
+        {"op": "key", "code": "KeyW", "shift": true},
+        {"op": "key", "code": "KeyQ"},
+        {"op": "key", "code": "BracketRight"},
+        {"op": "key", "code": "KeyR"},
+        {"op": "key", "code": "KeyN"},
+        {"op": "key", "code": "KeyZ", "ctrl": true},
+        {"op": "key", "code": "KeyC"},
+    ]);
+    let url = format!("http://{}/?save=1&ops={}", server.addr(), percent_encode(&ops.to_string()));
+    let (dom, _) = dump_dom(&chromium, &url, 30_000);
+    let s = status(&dom);
+    assert_eq!(
+        (s.get("selftest").map(String::as_str), s.get("saved").map(String::as_str)),
+        (Some("done"), Some("1")),
+        "{s:?}"
+    );
+    let edited = pi3det_data::open(&data.join("pi3det_infos_train.edit-001.pkl")).unwrap();
+    let f0 = edited.info(0).unwrap().objects;
+    assert_eq!(f0.len(), 1, "N added a box, Ctrl+Z took it back");
+    let mut want = orig.info(0).unwrap().objects[0].box3d.to_array();
+    want[0] += 1.1;
+    want[2] += 0.1;
+    want[3] += 0.1;
+    want[6] += std::f64::consts::PI / 180.0;
+    assert!(close(f0[0].box3d.to_array(), want), "{:?} vs {want:?}", f0[0].box3d);
+    let f1 = edited.info(1).unwrap().objects;
+    assert_eq!(f1.len(), orig.info(1).unwrap().objects.len() + 1, "C copied the box to the next frame");
+    assert!(close(f1.last().unwrap().box3d.to_array(), want));
+}

@@ -519,7 +519,7 @@
         throw new Error('unknown edit ' + op.op);
     }
     if (op.op !== 'delete' && select != null && after[select]) lastClass = after[select].name;
-    undoStack.push({ frame: target, before });
+    undoStack.push({ frame: target, before, sel: selected });
     redoStack.length = 0;
     layers[target][editable] = after;
     if (target === cur) selected = select == null ? null : { layer: editable, index: select };
@@ -539,9 +539,11 @@
   function undoRedo(from, to) {
     const e = from.pop();
     if (!e) return false;
-    to.push({ frame: e.frame, before: copyObj(layers[e.frame][editable]) });
+    to.push({ frame: e.frame, before: copyObj(layers[e.frame][editable]), sel: selected });
     layers[e.frame][editable] = e.before;
-    selected = null;
+    // Back to the selection of that moment (undoing an add selects the box selected before it).
+    const sel = e.frame === cur && e.sel && e.sel.layer === editable && e.before[e.sel.index] ? e.sel : null;
+    selected = sel;
     markDirty(true);
     afterEdit();
     return true;
@@ -789,7 +791,13 @@
         for (const op of JSON.parse(params.get('ops'))) {
           if (op.op === 'undo') undoRedo(undoStack, redoStack);
           else if (op.op === 'redo') undoRedo(redoStack, undoStack);
-          else applyEdit(op);
+          else if (op.op === 'select') select(editable, op.index);
+          else if (op.op === 'key') {
+            // Through the keyboard handler, as a key press would.
+            window.dispatchEvent(new KeyboardEvent('keydown', {
+              code: op.code, key: op.key || '', shiftKey: !!op.shift, ctrlKey: !!op.ctrl, bubbles: true, cancelable: true,
+            }));
+          } else applyEdit(op);
         }
         if (params.get('save') === '1') await save();
         setStatus({ selftest: 'done' });
