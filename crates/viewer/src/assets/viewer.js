@@ -382,7 +382,7 @@
     setStatus({
       state: 'ok', frame: frames[k].id, frameIndex: k, frames: frames.length, points: r.nPoints, boxes: r.nBoxes,
       nonblank: nonBlank(), ms: Math.round(performance.now()), gl: 'webgl2',
-    }, `${frames[k].id}: ${r.nPoints} points, ${r.nBoxes} boxes` + (edit ? '' : '') + ' — H for help');
+    }, `${frames[k].id}: ${r.nPoints} points, ${r.nBoxes} boxes — H for help`);
     renderPanel();
   }
 
