@@ -34,6 +34,10 @@ enum Command {
     Track(pi3det_autolabel::cli::track::TrackArgs),
     /// Draw 3-D boxes into the camera images through the calibration; flag boxes no camera sees.
     Project(pi3det_autolabel::cli::project::ProjectArgs),
+    /// Write one self-contained HTML page (WebGL2) showing points, ground truth and detections.
+    View(pi3det_viewer::cli::ViewArgs),
+    /// Serve the viewer with box editing on loopback; saves write a new label set beside the data.
+    Annotate(pi3det_viewer::cli::AnnotateArgs),
     /// Train a detector (PointPillars, anchor or center head) from a TOML config.
     Train(Forwarded),
     /// Run a trained detector over a dataset; write JSON lines and result.pkl, with latency.
@@ -97,6 +101,8 @@ fn main() -> std::process::ExitCode {
             pi3det_autolabel::cli::bench::run(args).map_err(anyhow::Error::from)
         }
         Command::Project(args) => pi3det_autolabel::cli::project::run(args).map(|_| ()).map_err(anyhow::Error::from),
+        Command::View(args) => pi3det_viewer::cli::run_view(args).map_err(anyhow::Error::from),
+        Command::Annotate(args) => pi3det_viewer::cli::run_annotate(args).map_err(anyhow::Error::from),
         Command::Bench(BenchCommand::Sim(args)) => pi3det_sim::cli::run_bench(args).map_err(anyhow::Error::from),
         Command::Train(_)
         | Command::Detect(_)

@@ -22,14 +22,18 @@ pub struct Pi3detDataset {
     splits: Vec<(String, usize)>,
 }
 
-/// The info files under `root`, sorted (train before val).
+/// The info files under `root`, sorted (train before val). Derived label sets written beside them
+/// (`pi3det_infos_<split>.<label-set>.pkl`, e.g. by `pi3det annotate`) are not included: they hold
+/// the same frames again; open such a file by its path.
 pub fn info_files(root: &Path) -> Result<Vec<PathBuf>, DataError> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(root)
         .map_err(|e| DataError::io(root, e))?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {
             let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
-            name.starts_with("pi3det_infos_") && name.ends_with(".pkl")
+            name.strip_prefix("pi3det_infos_")
+                .and_then(|rest| rest.strip_suffix(".pkl"))
+                .is_some_and(|split| !split.contains('.'))
         })
         .collect();
     files.sort();
@@ -232,23 +236,6 @@ impl Pi3detWriter {
         self.infos.push(value);
     }
 
-    /// Adds a frame whose point file already exists: the info references it (relative to the
-    /// root when inside it, else by its absolute path) and nothing is copied — a new label set
-    /// over the same points.
-    pub fn write_info(&mut self, info: &FrameInfo) -> Result<(), DataError> {
-        if !info.points_path.is_file() {
-            return Err(DataError::io(
-                &info.points_path,
-                std::io::Error::new(std::io::ErrorKind::NotFound, "point file of the label set not found"),
-            ));
-        }
-        let points = std::fs::canonicalize(&info.points_path).map_err(|e| DataError::io(&info.points_path, e))?;
-        let root = std::fs::canonicalize(&self.root).unwrap_or_else(|_| self.root.clone());
-        let rel = points.strip_prefix(&root).unwrap_or(&points).to_string_lossy().into_owned();
-        self.push_info(info, &rel);
-        Ok(())
-    }
-
     /// Writes the info file and returns its path.
     pub fn finish(self) -> Result<PathBuf, DataError> {
         let path = self.root.join(format!("pi3det_infos_{}.pkl", self.split));
@@ -257,6 +244,31 @@ impl Pi3detWriter {
         write_atomic(&path, &bytes, self.overwrite)?;
         Ok(path)
     }
+}
+
+/// Writes an info file for frames whose point files already exist (a corrected label set beside
+/// the original): each `points_path` is kept, written relative to the info file's folder when it
+/// lies under it (as the released files do) and absolute otherwise. No point file is written;
+/// an existing `path` is not replaced unless `overwrite`.
+pub fn write_infos(path: &Path, infos: &[FrameInfo], overwrite: bool) -> Result<(), DataError> {
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    // Canonical paths, so that a point path relative to the working directory (data opened by a
+    // relative path) still resolves from the info file's folder.
+    let dir = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.to_path_buf());
+    let values = infos
+        .iter()
+        .map(|info| {
+            let points = std::fs::canonicalize(&info.points_path).unwrap_or_else(|_| info.points_path.clone());
+            let rel = points.strip_prefix(&dir).unwrap_or(&points);
+            let rel = rel.to_str().ok_or_else(|| {
+                DataError::invalid(&info.points_path, "point file path is not UTF-8; cannot be written to an info file")
+            })?;
+            Ok(info_value(info, rel))
+        })
+        .collect::<Result<Vec<_>, DataError>>()?;
+    let bytes = pickle::to_vec(&Value::List(values))
+        .map_err(|source| DataError::Pickle { path: path.to_path_buf(), source })?;
+    write_atomic(path, &bytes, overwrite)
 }
 
 fn array2(rows: usize, cols: usize, data: Vec<f64>) -> Value {

@@ -135,3 +135,37 @@ fn kitti_result_files_round_trip_through_calib() {
         }
     }
 }
+
+/// A corrected label set beside the original: same point files, none written, and the folder
+/// still opens as the original frames only.
+#[test]
+fn label_set_beside_the_original_points_at_the_same_files() {
+    let dir = tempfile::tempdir().unwrap();
+    write_dataset(dir.path(), false).unwrap();
+    let original = std::fs::read(dir.path().join("pi3det_infos_train.pkl")).unwrap();
+    let ds = open(dir.path()).unwrap();
+    let mut infos: Vec<FrameInfo> = (0..ds.len()).map(|i| ds.info(i).unwrap()).collect();
+    infos[1].objects.truncate(1);
+    infos[1].objects[0].box3d.x += 1.0;
+    let edit = dir.path().join("pi3det_infos_train.edit-001.pkl");
+    pi3det_data::pi3det::write_infos(&edit, &infos, false).unwrap();
+    assert!(matches!(
+        pi3det_data::pi3det::write_infos(&edit, &infos, false),
+        Err(pi3det_data::DataError::Exists { .. })
+    ));
+    assert_eq!(std::fs::read(dir.path().join("pi3det_infos_train.pkl")).unwrap(), original);
+    assert_eq!(open(dir.path()).unwrap().len(), 2, "the label set is not read as another split");
+    let e = open(&edit).unwrap();
+    assert_eq!(e.len(), 2);
+    assert_eq!(e.info(1).unwrap().points_path, ds.info(1).unwrap().points_path);
+    assert_eq!(e.info(1).unwrap().objects.len(), 1);
+    assert_eq!(e.info(1).unwrap().objects[0].box3d.x, 11.0);
+    let (a, b) = (e.info(0).unwrap(), ds.info(0).unwrap());
+    assert_eq!((&a.id, &a.objects, &a.sequence, &a.points_path), (&b.id, &b.objects, &b.sequence, &b.points_path));
+    assert_eq!(e.load(0).unwrap().points, ds.load(0).unwrap().points);
+    // Points outside the info file's folder are referenced by absolute path.
+    let other = tempfile::tempdir().unwrap();
+    let elsewhere = other.path().join("pi3det_infos_val.pkl");
+    pi3det_data::pi3det::write_infos(&elsewhere, &infos, false).unwrap();
+    assert_eq!(open(&elsewhere).unwrap().load(1).unwrap().points, ds.load(1).unwrap().points);
+}

@@ -248,13 +248,15 @@ pub fn run_autolabel(args: &AutolabelArgs) -> Result<()> {
     }
     final_labels.write_jsonl(&args.out.join("labels.jsonl"), Some(&final_ids), true)?;
     // The label set: the data's frames with the final boxes, over the original point files.
-    let mut writer = pi3det_data::pi3det::Pi3detWriter::create(&args.out, &split, true)?;
-    for info in &infos {
-        let mut labelled = info.clone();
-        labelled.objects = final_labels.frames.get(&info.id).cloned().unwrap_or_default();
-        writer.write_info(&labelled)?;
-    }
-    let info_file = writer.finish()?;
+    let labelled: Vec<FrameInfo> = infos
+        .iter()
+        .map(|info| FrameInfo {
+            objects: final_labels.frames.get(&info.id).cloned().unwrap_or_default(),
+            ..info.clone()
+        })
+        .collect();
+    let info_file = args.out.join(info_name(&split));
+    pi3det_data::pi3det::write_infos(&info_file, &labelled, true)?;
     let has_gt = infos.iter().any(|i| !i.objects.is_empty());
     let mut rows = Vec::new();
     if has_gt {
