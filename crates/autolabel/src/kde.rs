@@ -22,10 +22,12 @@ pub enum KdeError {
 /// A fitted density over `n` samples in `d` dimensions.
 #[derive(Debug, Clone)]
 pub struct Kde {
-    samples: Vec<DVector<f64>>,
+    dims: usize,
+    /// `n × d`, row-major (flat: clusters are small and evaluated often, so no per-call allocation).
+    samples: Vec<f64>,
     weights: Vec<f64>,
-    /// Inverse of the kernel covariance.
-    precision: DMatrix<f64>,
+    /// Inverse of the kernel covariance, `d × d` row-major.
+    precision: Vec<f64>,
     /// `1 / sqrt((2π)^d det K)`.
     norm: f64,
 }
@@ -68,9 +70,11 @@ impl Kde {
         if !(det.is_finite() && det > 0.0) {
             return Err(KdeError::Singular);
         }
-        let precision = chol.inverse();
+        let inv = chol.inverse();
+        let precision: Vec<f64> = (0..d * d).map(|k| inv[(k / d, k % d)]).collect();
         let norm = 1.0 / ((2.0 * std::f64::consts::PI).powi(d as i32) * det).sqrt();
-        Ok(Self { samples: xs, weights: w, precision, norm })
+        let samples = xs.iter().flat_map(|x| x.iter().copied()).collect();
+        Ok(Self { dims: d, samples, weights: w, precision, norm })
     }
 
     /// Fits one-dimensional samples.
@@ -81,22 +85,33 @@ impl Kde {
 
     /// The density at `point` (length `d`).
     pub fn density(&self, point: &[f64]) -> f64 {
-        let p = DVector::from_column_slice(point);
-        let sum: f64 = self
-            .samples
-            .iter()
-            .zip(&self.weights)
-            .map(|(x, w)| {
-                let diff = &p - x;
-                w * (-0.5 * (diff.transpose() * &self.precision * &diff)[(0, 0)]).exp()
-            })
-            .sum();
+        let d = self.dims;
+        let mut diff = [0.0f64; 8];
+        let mut sum = 0.0;
+        for (x, w) in self.samples.chunks_exact(d).zip(&self.weights) {
+            let mut q = 0.0;
+            if d <= diff.len() {
+                for i in 0..d {
+                    diff[i] = point[i] - x[i];
+                }
+                for i in 0..d {
+                    let row = &self.precision[i * d..(i + 1) * d];
+                    q += diff[i] * row.iter().zip(&diff[..d]).map(|(a, b)| a * b).sum::<f64>();
+                }
+            } else {
+                let diff: Vec<f64> = point.iter().zip(x).map(|(p, x)| p - x).collect();
+                for i in 0..d {
+                    q += diff[i] * (0..d).map(|j| self.precision[i * d + j] * diff[j]).sum::<f64>();
+                }
+            }
+            sum += w * (-0.5 * q).exp();
+        }
         sum * self.norm
     }
 
     /// Index of the sample of highest density (the first one on ties, like `np.where(..)[0][0]`).
     pub fn densest_sample(&self) -> usize {
-        let densities: Vec<f64> = self.samples.iter().map(|x| self.density(x.as_slice())).collect();
+        let densities: Vec<f64> = self.samples.chunks_exact(self.dims).map(|x| self.density(x)).collect();
         first_argmax(&densities)
     }
 }
