@@ -4,14 +4,16 @@
 
 use pi3det_data::FrameInfo;
 use pi3det_geometry::iou_3d;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::labels::LabelSet;
 
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// Precision and recall of one class at one IoU.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Quality {
     pub class: String,
     pub iou: f64,
+    /// Label boxes and ground-truth boxes compared.
     pub labels: usize,
     pub ground_truth: usize,
     pub true_positives: usize,
@@ -80,10 +82,10 @@ pub fn quality(
     out
 }
 
-/// A markdown table, one row per (stage, class, IoU), percentages.
-pub fn quality_table(rows: &[(String, Vec<Quality>)]) -> String {
-    let mut s = String::from(
-        "| labels | class | IoU | boxes | GT | precision | recall |\n| --- | --- | --- | --- | --- | --- | --- |\n",
+/// A markdown table, one row per (stage, class, IoU), percentages; `what` heads the stage column.
+pub fn quality_table(what: &str, rows: &[(String, Vec<Quality>)]) -> String {
+    let mut s = format!(
+        "| {what} | class | IoU | boxes | GT | precision | recall |\n| --- | --- | --- | --- | --- | --- | --- |\n"
     );
     for (name, qs) in rows {
         for q in qs {

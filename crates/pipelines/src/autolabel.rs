@@ -300,7 +300,7 @@ pub fn run_autolabel(args: &AutolabelArgs) -> Result<()> {
         info_file.display()
     );
     if has_gt {
-        print!("{}", quality_table(&rows));
+        print!("{}", quality_table("labels", &rows));
     }
     Ok(())
 }

@@ -85,7 +85,7 @@ pub fn run(args: &BenchArgs) -> Result<(), AutolabelError> {
         args.seed,
         args.min_members
     );
-    println!("{}", quality_table(&rows));
+    println!("{}", quality_table("labels", &rows));
     println!(
         "fusion {:.3} s, tracking {:.3} s ({} tracks, {} interpolated boxes)",
         fuse_s, track_s, tracked.stats.tracks, tracked.stats.interpolated_boxes

@@ -22,6 +22,9 @@ pub struct FuseArgs {
     /// Fusion parameters (TOML; `--print-config` shows the defaults, MS3D++'s).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// Members a cluster needs, for every class (overrides the config's `min_members`).
+    #[arg(long)]
+    pub min_members: Option<usize>,
     /// Check that every frame id is one of this dataset's.
     #[arg(long, value_name = "DATASET")]
     pub data: Option<PathBuf>,
@@ -42,6 +45,19 @@ pub fn run(args: &FuseArgs) -> Result<(), AutolabelError> {
     if args.print_config {
         print!("{}", toml::to_string_pretty(&cfg).map_err(|e| AutolabelError::Config(e.to_string()))?);
         return Ok(());
+    }
+    let mut cfg = cfg;
+    if let Some(m) = args.min_members {
+        cfg.classes.iter_mut().for_each(|c| c.min_members = m);
+    }
+    if let Some(c) = cfg.classes.iter().find(|c| c.min_members > args.det.len()) {
+        tracing::warn!(
+            "{} inputs but class {} needs {} cluster members: only inputs with several boxes per object (test-time \
+             augmentation) can fill such clusters; --min-members sets a smaller size",
+            args.det.len(),
+            c.name,
+            c.min_members
+        );
     }
     let out = args.out.as_deref().ok_or_else(|| AutolabelError::Input("--out is required".into()))?;
     refuse_existing(out, args.overwrite)?;

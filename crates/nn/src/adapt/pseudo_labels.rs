@@ -12,7 +12,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use pi3det_data::{DataError, Dataset, Format, FrameInfo, Object};
-use pi3det_geometry::{iou_3d, Box3d};
+use pi3det_geometry::Box3d;
 use serde::{Deserialize, Serialize};
 
 use crate::config::DetectorConfig;
@@ -114,22 +114,11 @@ impl Dataset for PseudoLabeled {
     }
 }
 
-/// Precision and recall of one class at one IoU.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct LabelQuality {
-    pub class: String,
-    pub iou: f64,
-    /// Pseudo-boxes (at or above the positive score) and ground-truth boxes compared.
-    pub labels: usize,
-    pub ground_truth: usize,
-    pub true_positives: usize,
-    pub precision: f64,
-    pub recall: f64,
-}
+pub use pi3det_autolabel::quality::Quality as LabelQuality;
 
 /// Precision / recall of the positive pseudo-labels (score ≥ `min_score`) against the frames'
-/// ground truth `gt` (same order), per class of `cfg` and IoU in `ious` (3D IoU, greedy by
-/// score, one GT per label). Both sides are limited to the BEV square `bev_range`
+/// ground truth `gt`, per class of `cfg` and IoU in `ious` (3D IoU, greedy by score, one GT per
+/// label; [`pi3det_autolabel::quality`]). Both sides are limited to the BEV square `bev_range`
 /// (`[x_min, y_min, x_max, y_max]`, LiDAR frame).
 pub fn quality(
     labels: &[FrameDetections],
@@ -140,74 +129,24 @@ pub fn quality(
     bev_range: [f64; 4],
 ) -> Vec<LabelQuality> {
     let inside = |b: &Box3d| b.x >= bev_range[0] && b.x < bev_range[2] && b.y >= bev_range[1] && b.y < bev_range[3];
-    let mut out = Vec::new();
-    for (k, class) in cfg.classes.iter().enumerate() {
-        for &thr in ious {
-            let (mut n_labels, mut n_gt, mut tp) = (0, 0, 0);
-            for (f, g) in labels.iter().zip(gt) {
-                let mut preds: Vec<&Object> = f
-                    .objects
-                    .iter()
-                    .filter(|o| cfg.class_index(&o.name) == Some(k) && o.score.unwrap_or(1.0) >= min_score)
-                    .filter(|o| inside(&o.box3d))
-                    .collect();
-                preds.sort_by(|a, b| b.score.unwrap_or(1.0).total_cmp(&a.score.unwrap_or(1.0)));
-                let truth: Vec<&Box3d> = g
-                    .objects
-                    .iter()
-                    .filter(|o| cfg.class_index(&o.name) == Some(k) && inside(&o.box3d))
-                    .map(|o| &o.box3d)
-                    .collect();
-                let mut used = vec![false; truth.len()];
-                for p in &preds {
-                    let best = truth
-                        .iter()
-                        .enumerate()
-                        .filter(|(j, _)| !used[*j])
-                        .map(|(j, t)| (j, iou_3d(&p.box3d, t)))
-                        .max_by(|a, b| a.1.total_cmp(&b.1));
-                    if let Some((j, _)) = best.filter(|(_, iou)| *iou >= thr) {
-                        used[j] = true;
-                        tp += 1;
-                    }
-                }
-                n_labels += preds.len();
-                n_gt += truth.len();
-            }
-            let ratio = |a: usize, b: usize| if b == 0 { 0.0 } else { a as f64 / b as f64 };
-            out.push(LabelQuality {
-                class: class.clone(),
-                iou: thr,
-                labels: n_labels,
-                ground_truth: n_gt,
-                true_positives: tp,
-                precision: ratio(tp, n_labels),
-                recall: ratio(tp, n_gt),
-            });
-        }
+    let mut set = pi3det_autolabel::LabelSet::default();
+    for f in labels {
+        let kept =
+            f.objects.iter().filter(|o| o.score.unwrap_or(1.0) >= min_score && inside(&o.box3d)).cloned().collect();
+        set.frames.insert(f.info.id.clone(), kept);
     }
-    out
+    let gt: Vec<FrameInfo> = gt
+        .iter()
+        .map(|g| FrameInfo { objects: g.objects.iter().filter(|o| inside(&o.box3d)).cloned().collect(), ..g.clone() })
+        .collect();
+    let classes: Vec<&str> = cfg.classes.iter().map(String::as_str).collect();
+    let class_of = |n: &str| cfg.class_index(n).map(|k| cfg.classes[k].clone());
+    pi3det_autolabel::quality::quality(&set, &gt, &classes, class_of, ious)
 }
 
 /// A markdown table of [`quality`] rows, one per (setting, class, IoU).
 pub fn quality_table(rows: &[(String, Vec<LabelQuality>)]) -> String {
-    let mut s = String::from(
-        "| pseudo-labels | class | IoU | labels | GT | precision | recall |\n| --- | --- | --- | --- | --- | --- | --- |\n",
-    );
-    for (name, qs) in rows {
-        for q in qs {
-            s += &format!(
-                "| {name} | {} | {} | {} | {} | {:.1} | {:.1} |\n",
-                q.class,
-                q.iou,
-                q.labels,
-                q.ground_truth,
-                100.0 * q.precision,
-                100.0 * q.recall
-            );
-        }
-    }
-    s
+    pi3det_autolabel::quality::quality_table("pseudo-labels", rows)
 }
 
 #[cfg(test)]
