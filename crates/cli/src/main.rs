@@ -120,7 +120,7 @@ fn finish(result: anyhow::Result<std::process::ExitCode>) -> std::process::ExitC
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", pi3det_data::error::report(e.as_ref()));
             std::process::ExitCode::FAILURE
         }
     }

@@ -12,12 +12,35 @@ pub enum DataError {
     Invalid { path: PathBuf, message: String },
     #[error("{path}:{line}: {message}")]
     Line { path: PathBuf, line: usize, message: String },
-    #[error("{path}: {source}")]
+    #[error("{}", pickle_message(path, source))]
     Pickle { path: PathBuf, source: PickleError },
     #[error("{path}: already exists (pass overwrite to replace it)")]
     Exists { path: PathBuf },
     #[error("{path}: not a dataset pi3det recognises ({hint})")]
     UnknownFormat { path: PathBuf, hint: String },
+}
+
+/// A pickle error that already names this file is not prefixed with it again.
+fn pickle_message(path: &Path, source: &PickleError) -> String {
+    match source {
+        PickleError::InFile { path: p, .. } | PickleError::Io { path: p, .. } if p == path => source.to_string(),
+        _ => format!("{}: {source}", path.display()),
+    }
+}
+
+/// An error and its causes on one line, each cause only where the text so far does not already
+/// hold it (errors here print their source in their own message, as `"{path}: {source}"`).
+pub fn report(error: &(dyn std::error::Error + 'static)) -> String {
+    let mut text = error.to_string();
+    let mut cause = error.source();
+    while let Some(c) = cause {
+        let s = c.to_string();
+        if !text.contains(&s) {
+            text = format!("{text}: {s}");
+        }
+        cause = c.source();
+    }
+    text
 }
 
 impl DataError {

@@ -69,7 +69,7 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", pi3det_data::error::report(e.as_ref()));
             std::process::ExitCode::FAILURE
         }
     }
