@@ -141,6 +141,11 @@ pub fn parse_label_line(line: &str) -> Result<KittiLabel, String> {
 /// Reads a label (or result) file; blank lines are skipped, bad lines are errors with file:line.
 pub fn read_labels(path: &Path) -> Result<Vec<KittiLabel>, DataError> {
     let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
+    parse_labels(&text, path)
+}
+
+/// [`read_labels`] of text already in memory; `path` names it in messages.
+pub fn parse_labels(text: &str, path: &Path) -> Result<Vec<KittiLabel>, DataError> {
     text.lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
@@ -151,6 +156,11 @@ pub fn read_labels(path: &Path) -> Result<Vec<KittiLabel>, DataError> {
 /// Reads `calib/<id>.txt` (P2, R0_rect, Tr_velo_to_cam are required).
 pub fn read_calib(path: &Path) -> Result<KittiCalib, DataError> {
     let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
+    parse_calib(&text, path)
+}
+
+/// [`read_calib`] of text already in memory; `path` names it in messages.
+pub fn parse_calib(text: &str, path: &Path) -> Result<KittiCalib, DataError> {
     let find = |key: &str, n: usize| -> Result<Vec<f64>, DataError> {
         let (i, line) = text
             .lines()

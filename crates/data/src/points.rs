@@ -111,7 +111,15 @@ pub struct BinRead {
 /// coordinate are dropped, counted, and reported once per file as a warning.
 pub fn read_bin(path: &Path, channels: &[&str]) -> Result<BinRead, DataError> {
     let bytes = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
+    parse_bin(&bytes, channels, path)
+}
+
+/// [`read_bin`] of bytes already in memory; `path` names them in messages.
+pub fn parse_bin(bytes: &[u8], channels: &[&str], path: &Path) -> Result<BinRead, DataError> {
     let stride = channels.len();
+    if stride < 3 {
+        return Err(DataError::invalid(path, format!("{stride} channels per point; x, y and z are needed")));
+    }
     let point_bytes = 4 * stride;
     if !bytes.len().is_multiple_of(point_bytes) {
         return Err(DataError::invalid(

@@ -25,7 +25,6 @@
 //! A frame id may appear only once. Frames of the ground truth missing here have no detections.
 
 use std::collections::BTreeMap;
-use std::io::BufRead;
 use std::path::{Path, PathBuf};
 
 use pi3det_data::pickle::{self, Value};
@@ -184,28 +183,28 @@ impl Detections {
 
     /// Our JSON-lines format (a `.json` file holding one array of such objects is accepted too).
     pub fn read_jsonl(path: &Path) -> Result<Self, EvalError> {
-        let file = std::fs::File::open(path).map_err(|e| EvalError::io(path, e))?;
+        let text = std::fs::read_to_string(path).map_err(|e| EvalError::io(path, e))?;
+        Self::parse_jsonl(&text, path)
+    }
+
+    /// [`Self::read_jsonl`] of text already in memory; `path` names it in messages.
+    pub fn parse_jsonl(text: &str, path: &Path) -> Result<Self, EvalError> {
         let mut out = Self { source: path.to_path_buf(), ..Self::default() };
-        let mut lines = std::io::BufReader::new(file).lines().enumerate().peekable();
         // A JSON array instead of lines.
-        if let Some((_, Ok(first))) = lines.peek() {
-            if first.trim_start().starts_with('[') {
-                let text = std::fs::read_to_string(path).map_err(|e| EvalError::io(path, e))?;
-                let frames: Vec<JsonlFrame> =
-                    serde_json::from_str(&text).map_err(|e| EvalError::invalid(path, e.to_string()))?;
-                for f in frames {
-                    let (id, dets) = Self::from_jsonl(f).map_err(|m| EvalError::invalid(path, m))?;
-                    out.insert(id, dets).map_err(|m| EvalError::invalid(path, m))?;
-                }
-                return Ok(out);
+        if text.trim_start().starts_with('[') {
+            let frames: Vec<JsonlFrame> =
+                serde_json::from_str(text).map_err(|e| EvalError::invalid(path, e.to_string()))?;
+            for f in frames {
+                let (id, dets) = Self::from_jsonl(f).map_err(|m| EvalError::invalid(path, m))?;
+                out.insert(id, dets).map_err(|m| EvalError::invalid(path, m))?;
             }
+            return Ok(out);
         }
-        for (i, line) in lines {
-            let line = line.map_err(|e| EvalError::io(path, e))?;
+        for (i, line) in text.lines().enumerate() {
             if line.trim().is_empty() {
                 continue;
             }
-            let f: JsonlFrame = serde_json::from_str(&line).map_err(|e| EvalError::line(path, i + 1, e.to_string()))?;
+            let f: JsonlFrame = serde_json::from_str(line).map_err(|e| EvalError::line(path, i + 1, e.to_string()))?;
             let (id, dets) = Self::from_jsonl(f).map_err(|m| EvalError::line(path, i + 1, m))?;
             out.insert(id, dets).map_err(|m| EvalError::line(path, i + 1, m))?;
         }
@@ -249,7 +248,13 @@ impl Detections {
 
     /// OpenPCDet's `result.pkl`.
     pub fn read_result_pkl(path: &Path) -> Result<Self, EvalError> {
-        let value = pickle::from_path(path).map_err(|e| EvalError::invalid(path, e.to_string()))?;
+        // The pickle error names the file already.
+        let value = pickle::from_path(path).map_err(|e| EvalError::Input(e.to_string()))?;
+        Self::from_result_value(&value, path)
+    }
+
+    /// A `result.pkl` already unpickled; `path` names it in messages.
+    pub fn from_result_value(value: &Value, path: &Path) -> Result<Self, EvalError> {
         let list = value.as_list().ok_or_else(|| {
             EvalError::invalid(path, format!("expected a list of per-frame dicts, found {}", value.type_name()))
         })?;

@@ -351,6 +351,24 @@ impl DetectorConfig {
 mod tests {
     use super::*;
 
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 500, failure_persistence: None, ..Default::default() })]
+
+        /// Bounded fuzzing of the detector TOML (the demo's preset, mutated): a configuration or an
+        /// error, never a panic.
+        #[test]
+        fn mutated_presets_parse_or_fail_cleanly(
+            e in proptest::collection::vec((proptest::prelude::any::<usize>(), proptest::prelude::any::<u8>(), proptest::prelude::any::<bool>()), 1..8)
+        ) {
+            let mut b = include_str!("../../../configs/pointpillars_rcnn_cpu.toml").as_bytes().to_vec();
+            for (i, v, insert) in e {
+                let at = i % b.len();
+                if insert { b.insert(at, v) } else { b[at] = v }
+            }
+            let _ = DetectorConfig::from_toml_str(&String::from_utf8_lossy(&b));
+        }
+    }
+
     #[test]
     fn default_round_trips_through_toml() {
         let cfg = DetectorConfig::default();

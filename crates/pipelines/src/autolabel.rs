@@ -110,6 +110,26 @@ impl View {
     }
 }
 
+impl View {
+    /// A frame's info seen in this view: boxes moved, and the pose — which Virtual Platform Pose
+    /// levels by — turned with the points (`world_from_view = world_from_lidar · Rz(−yaw)`). A
+    /// mirror is no rigid motion, so a flipped view drops the pose and VPP levels it from its own
+    /// ground plane instead.
+    fn info_in_view(self, mut info: FrameInfo) -> FrameInfo {
+        info.objects.iter_mut().for_each(|o| o.box3d = self.into_view(&o.box3d));
+        info.world_from_lidar = match (self.flip_y, info.world_from_lidar) {
+            (true, _) | (_, None) => None,
+            (false, Some(pose)) => Some(
+                pose * pi3det_geometry::Pose::from_parts(
+                    nalgebra::Translation3::identity(),
+                    nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, -self.yaw_rad),
+                ),
+            ),
+        };
+        info
+    }
+}
+
 fn views(kinds: &[TtaKind], rot_deg: f64) -> Vec<View> {
     let mut v = Vec::new();
     let id = View { flip_y: false, yaw_rad: 0.0 };
@@ -144,9 +164,8 @@ impl Dataset for ViewDataset {
         self.inner.len()
     }
     fn info(&self, index: usize) -> std::result::Result<FrameInfo, DataError> {
-        let mut info = self.inner.info(index)?;
-        info.objects.iter_mut().for_each(|o| o.box3d = self.view.into_view(&o.box3d));
-        Ok(info)
+        let info = self.inner.info(index)?;
+        Ok(self.view.info_in_view(info))
     }
     fn load(&self, index: usize) -> std::result::Result<Frame, DataError> {
         let frame = self.inner.load(index)?;
@@ -158,9 +177,7 @@ impl Dataset for ViewDataset {
             p[0] = x as f32;
             p[1] = y as f32;
         }
-        let mut info = frame.info;
-        info.objects.iter_mut().for_each(|o| o.box3d = self.view.into_view(&o.box3d));
-        Ok(Frame { info, points: PointCloud::from_vec(data, channels)? })
+        Ok(Frame { info: self.view.info_in_view(frame.info), points: PointCloud::from_vec(data, channels)? })
     }
 }
 
@@ -322,7 +339,21 @@ mod tests {
                 assert!((p - q).abs() < 1e-9, "{v:?}: {back:?}");
             }
         }
+        // A turned view keeps every point where it is in the world.
+        let mut info = FrameInfo::new("0", "x.bin".into());
+        let world_from_lidar = pi3det_geometry::Pose::from_parts(
+            nalgebra::Translation3::new(5.0, -2.0, 1.0),
+            nalgebra::UnitQuaternion::from_euler_angles(0.05, -0.03, 0.4),
+        );
+        info.world_from_lidar = Some(world_from_lidar);
+        let rot = View { flip_y: false, yaw_rad: 0.3 };
+        let world_from_view = rot.info_in_view(info.clone()).world_from_lidar.unwrap();
+        let p = nalgebra::Point3::new(7.0, 3.0, -1.0);
+        let (x, y) = rot.apply_xy(p.x, p.y);
+        let moved = world_from_view * nalgebra::Point3::new(x, y, p.z);
+        assert!((moved - world_from_lidar * p).norm() < 1e-9);
         let flip = View { flip_y: true, yaw_rad: 0.0 };
+        assert!(flip.info_in_view(info).world_from_lidar.is_none());
         let f = flip.into_view(&b);
         assert!((f.y - 3.0).abs() < 1e-12 && (f.heading + 0.7).abs() < 1e-12, "{f:?}");
     }

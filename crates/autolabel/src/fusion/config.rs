@@ -101,8 +101,8 @@ impl FusionConfig {
         if [b.centre, b.size, b.heading, b.score].iter().any(|v| !(v.is_finite() && *v > 0.0)) {
             return bad(format!("bandwidths must be positive: {b:?}"));
         }
-        if self.grid_points < 2 {
-            return bad("grid_points must be at least 2".into());
+        if !(2..=100_000).contains(&self.grid_points) {
+            return bad(format!("grid_points must be in 2..=100000, not {}", self.grid_points));
         }
         let mut seen = std::collections::BTreeSet::new();
         for c in &self.classes {
