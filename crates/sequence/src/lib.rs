@@ -15,6 +15,7 @@ pub mod error;
 pub mod hdf5;
 pub mod labels;
 pub mod ouster;
+pub mod synth;
 
 pub use dataset::{find_sequences, Sequence, SequenceDataset, SequenceOptions};
 pub use error::SequenceError;
