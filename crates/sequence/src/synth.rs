@@ -105,7 +105,7 @@ pub fn sweep_packets(spec: &SynthSpec, frame: usize, t0_ns: u64, rng: &mut impl 
             }
             for _ in 0..h {
                 let r = rng();
-                let range = if r % 10 == 0 { 0 } else { 300 + (r >> 8) % 80_000 } as u32;
+                let range = if r.is_multiple_of(10) { 0 } else { 300 + (r >> 8) % 80_000 } as u32;
                 out.extend_from_slice(&range.to_le_bytes());
                 match spec.profile {
                     UdpProfile::Legacy => out.extend_from_slice(&(((r >> 40) % 256) as u16).to_le_bytes()),
