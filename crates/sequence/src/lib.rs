@@ -9,6 +9,7 @@
 //! - [`dataset`]: a sequence folder or a tree of them as a lazy [`pi3det_data::Dataset`];
 //! - [`convert`]: writing them in the released Pi3DET layout, which every pi3det command reads.
 
+pub mod bench;
 pub mod convert;
 pub mod dataset;
 pub mod error;
