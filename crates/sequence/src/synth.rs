@@ -21,6 +21,8 @@ pub struct SynthSpec {
     pub seed: u64,
     /// Frames in the pose file (default: `frames`).
     pub pose_frames: Option<usize>,
+    /// Metadata JSON to store instead of [`metadata_json`] (for bad-input tests).
+    pub metadata: Option<String>,
 }
 
 impl SynthSpec {
@@ -34,6 +36,7 @@ impl SynthSpec {
             profile: UdpProfile::Legacy,
             seed: 16,
             pose_frames: None,
+            metadata: None,
         }
     }
 }
@@ -168,7 +171,8 @@ pub fn write_sequence(dir: &Path, spec: &SynthSpec) -> Result<PathBuf> {
         .with_shape(&[spec.frames as u64, packets, packet_bytes])
         .with_chunks(&[1, packets, packet_bytes])
         .with_lzf();
-    g.create_dataset("metadata").with_strings(&[&metadata_json(spec)]).map_err(|e| h5_err(&data_path, e))?;
+    let metadata = spec.metadata.clone().unwrap_or_else(|| metadata_json(spec));
+    g.create_dataset("metadata").with_strings(&[&metadata]).map_err(|e| h5_err(&data_path, e))?;
     let starts: Vec<i64> = (0..spec.frames).map(|k| (t0_us + k as u64 * 100_000) as i64).collect();
     g.create_dataset("ts_start").with_i64_data(&starts);
     let ends: Vec<i64> = starts.iter().map(|s| s + 100_000).collect();
