@@ -33,7 +33,12 @@ fn info_convert_and_read_back() {
     ok(pi3det(&["convert", p, "--to", "pi3det-layout", "--out", o, "--overwrite"]), "convert --overwrite");
 
     let back = ok(pi3det(&["info", o]), "info on the converted layout");
-    let rows = |t: &str| t.lines().filter(|l| l.starts_with("| platform") || l.starts_with("| all")).map(String::from).collect::<Vec<_>>();
+    let rows = |t: &str| {
+        t.lines()
+            .filter(|l| l.starts_with("| platform") || l.starts_with("| all"))
+            .map(String::from)
+            .collect::<Vec<_>>()
+    };
     assert_eq!(rows(&info), rows(&back));
     ok(pi3det(&["stats", o, "--out", dir.path().join("report").to_str().unwrap()]), "stats on the converted layout");
 

@@ -185,6 +185,13 @@ impl Sequence {
             Some(p) => labels::read(p)?,
             None => BTreeMap::new(),
         };
+        let unlabelled = (0..frames).filter(|k| !stored.contains_key(k)).count();
+        if labels_path.is_some() && unlabelled > 0 {
+            tracing::warn!(
+                "{}: {unlabelled} of {frames} frames have no pseudo-labels (read as frames without boxes)",
+                dir.display()
+            );
+        }
         let mut objects = Vec::with_capacity(frames);
         for k in 0..frames {
             let boxes = stored.get(&k).map(Vec::as_slice).unwrap_or(&[]);
@@ -242,6 +249,14 @@ impl Sequence {
         let bytes = self.data.read_row(k as u64)?;
         debug_assert_eq!(bytes.len(), self.packets_per_sweep * self.format.packet_bytes());
         self.format.decode(&bytes, sweep);
+        if sweep.columns_out_of_range > 0 {
+            tracing::warn!(
+                "{}: sweep {k}: {} columns with a measurement id outside the {}-column frame skipped",
+                self.data_path.display(),
+                sweep.columns_out_of_range,
+                sweep.w
+            );
+        }
         Ok(())
     }
 

@@ -36,6 +36,30 @@ fn truncated_hdf5() {
 }
 
 #[test]
+fn corrupt_lzf_chunks() {
+    let dir = tempfile::tempdir().unwrap();
+    let seq = write_sequence(dir.path(), &SynthSpec::os1_64("corrupt", 3)).unwrap();
+    let data = seq.join("corrupt_data.h5");
+    let clean = std::fs::read(&data).unwrap();
+    // hdf5-pure writes the chunks first and the metadata after them: damage inside the chunks.
+    let mut failed = 0;
+    for (at, byte) in [(clean.len() / 5, 0xff), (clean.len() / 3, 0x00), (clean.len() / 2, 0xe0)] {
+        let mut bytes = clean.clone();
+        bytes[at..at + 256].fill(byte);
+        std::fs::write(&data, &bytes).unwrap();
+        let ds = SequenceDataset::open(&seq, SequenceOptions::default()).unwrap();
+        for i in 0..ds.len() {
+            // Either an error naming the file, or (damage LZF cannot notice) some decoded sweep.
+            if let Err(e) = ds.load(i) {
+                assert!(e.to_string().contains("corrupt_data.h5"), "{e}");
+                failed += 1;
+            }
+        }
+    }
+    assert!(failed > 0, "no damaged chunk was noticed");
+}
+
+#[test]
 fn packet_size_that_does_not_fit_the_metadata() {
     let dir = tempfile::tempdir().unwrap();
     // Packets of 64 beams, metadata of 32.
