@@ -2,7 +2,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::sync::{Mutex, OnceLock};
 
 use pi3det_data::{DataError, Dataset, Format, Frame, FrameInfo, Object, Platform, PointCloud};
 use pi3det_geometry::{Pose, PoseExt};
@@ -43,7 +43,9 @@ pub struct Sequence {
     pub labels_path: Option<PathBuf>,
     pub metadata: SensorMetadata,
     pub format: PacketFormat,
-    data: H5Dataset,
+    /// Handles on `/ouster/data`: one streaming handle serialises its reads, so each
+    /// concurrent load borrows its own (opened on first need, then reused).
+    spare_handles: Mutex<Vec<H5Dataset>>,
     packets_per_sweep: usize,
     lut: OnceLock<XyzLut>,
     ts_start_us: Option<Vec<i64>>,
@@ -210,7 +212,7 @@ impl Sequence {
             labels_path,
             metadata,
             format,
-            data,
+            spare_handles: Mutex::new(vec![data]),
             packets_per_sweep,
             lut: OnceLock::new(),
             ts_start_us,
@@ -244,9 +246,23 @@ impl Sequence {
         info
     }
 
+    /// The raw packets of sweep `k` (one HDF5 row).
+    pub fn read_row(&self, k: usize) -> Result<Vec<u8>> {
+        let spare = self.spare_handles.lock().ok().and_then(|mut v| v.pop());
+        let handle = match spare {
+            Some(h) => h,
+            None => H5File::open(&self.data_path)?.dataset("/ouster/data")?,
+        };
+        let row = handle.read_row(k as u64);
+        if let Ok(mut v) = self.spare_handles.lock() {
+            v.push(handle);
+        }
+        row
+    }
+
     /// Decodes sweep `k` into `sweep` (reused between calls to save allocations).
     pub fn read_sweep(&self, k: usize, sweep: &mut Sweep) -> Result<()> {
-        let bytes = self.data.read_row(k as u64)?;
+        let bytes = self.read_row(k)?;
         debug_assert_eq!(bytes.len(), self.packets_per_sweep * self.format.packet_bytes());
         self.format.decode(&bytes, sweep);
         if sweep.columns_out_of_range > 0 {
@@ -270,19 +286,29 @@ impl Sequence {
     }
 
     pub fn load(&self, k: usize) -> Result<Frame> {
-        let points = self.sweep_points(k)?;
-        let t0 = points.iter().map(|p| p.timestamp_ns).min().unwrap_or(0);
-        let mut data = Vec::with_capacity(points.len() * CHANNELS.len());
-        for p in &points {
-            data.extend_from_slice(&[
-                p.xyz[0] as f32,
-                p.xyz[1] as f32,
-                p.xyz[2] as f32,
-                intensity(p.reflectivity),
-                ((p.timestamp_ns - t0) as f64 * 1e-9) as f32,
-                f32::from(p.beam),
-            ]);
+        thread_local! {
+            // Reused between loads: fresh multi-megabyte buffers per sweep cost page faults,
+            // which serialise threads on the address-space lock.
+            static SWEEP: std::cell::RefCell<Sweep> = std::cell::RefCell::new(Sweep::default());
         }
+        let data = SWEEP.with(|cell| -> Result<Vec<f32>> {
+            let mut sweep = cell.borrow_mut();
+            self.read_sweep(k, &mut sweep)?;
+            let t0 = (0..sweep.w).filter(|&v| sweep.column_valid[v]).map(|v| sweep.column_timestamp_ns[v]).min();
+            let t0 = t0.unwrap_or(0);
+            let mut data = Vec::with_capacity(sweep.range_mm.len() * CHANNELS.len());
+            self.lut().for_each_point(&sweep, |p| {
+                data.extend_from_slice(&[
+                    p.xyz[0] as f32,
+                    p.xyz[1] as f32,
+                    p.xyz[2] as f32,
+                    intensity(p.reflectivity),
+                    (p.timestamp_ns.saturating_sub(t0) as f64 * 1e-9) as f32,
+                    f32::from(p.beam),
+                ]);
+            });
+            Ok(data)
+        })?;
         let points = PointCloud::from_vec(data, CHANNELS.iter().map(|s| s.to_string()).collect())?;
         Ok(Frame { info: self.info(k), points })
     }

@@ -80,17 +80,23 @@ impl XyzLut {
     /// The sweep's points with range > 0, in the destaggered image's row-major order (beam by
     /// beam, then by azimuth column as `destagger` lays them out), appended to `out`.
     pub fn points(&self, sweep: &Sweep, out: &mut Vec<SweepPoint>) {
+        self.for_each_point(sweep, |p| out.push(p));
+    }
+
+    /// [`points`](Self::points) without collecting them.
+    pub fn for_each_point(&self, sweep: &Sweep, mut f: impl FnMut(SweepPoint)) {
         let w = self.w;
         for u in 0..self.h.min(sweep.h) {
             let shift = self.shifts[u];
+            let row = &sweep.range_mm[u * w..(u + 1) * w];
             for vd in 0..w {
                 // destagger: output column (v + shift) mod w holds staggered column v.
                 let v = (vd + w - shift) % w;
-                let r = sweep.range_mm[u * w + v];
+                let r = row[v];
                 if r == 0 {
                     continue;
                 }
-                out.push(SweepPoint {
+                f(SweepPoint {
                     xyz: self.xyz(u, v, r),
                     reflectivity: sweep.reflectivity[u * w + v],
                     timestamp_ns: sweep.column_timestamp_ns[v],
