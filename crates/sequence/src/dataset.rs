@@ -152,6 +152,7 @@ impl Sequence {
             ));
         }
         data.row_bytes()?;
+        data.check_chunks()?;
         let short = |what: &str, path: &Path, n: usize, frames: usize| {
             SequenceError::invalid(
                 path,

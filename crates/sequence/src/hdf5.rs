@@ -80,6 +80,7 @@ impl H5Dataset {
     }
 
     fn check_total(&self) -> Result<()> {
+        self.check_chunks()?;
         let n = self.shape.first().copied().unwrap_or(1);
         match self.row_bytes()?.checked_mul(n) {
             Some(b) if b <= MAX_READ_BYTES => Ok(()),
@@ -91,7 +92,18 @@ impl H5Dataset {
         }
     }
 
-    /// The raw bytes of row `row` (e.g. one sweep's packets).
+    /// A chunk is decompressed whole: its claimed size is capped like a read.
+    pub fn check_chunks(&self) -> Result<()> {
+        let Some(chunk) = self.ds.chunk_shape().map_err(|e| self.err(e))? else { return Ok(()) };
+        let bytes = chunk.iter().try_fold(self.element_bytes, |a, &d| a.checked_mul(d));
+        match bytes {
+            Some(b) if b <= MAX_READ_BYTES => Ok(()),
+            _ => Err(self.err(format!("chunks of shape {chunk:?} exceed the {} MiB read limit", MAX_READ_BYTES >> 20))),
+        }
+    }
+
+    /// The raw bytes of row `row` (e.g. one sweep's packets); call [`check_chunks`](Self::check_chunks)
+    /// once before.
     pub fn read_row(&self, row: u64) -> Result<Vec<u8>> {
         let expect = self.row_bytes()?;
         let n = self.shape.first().copied().unwrap_or(0);

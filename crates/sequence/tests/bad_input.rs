@@ -135,6 +135,7 @@ fn h5py_written_bad_files() {
         ("bad-box", "shape [4, 8]"),
         ("huge", "packets are 2147483648 bytes"),
         ("huge-rows", "exceed the 256 MiB read limit"),
+        ("huge-chunks", "chunks of shape [700, 32, 12608] exceed the 256 MiB read limit"),
     ];
     for (kind, want) in cases {
         let dir = tempfile::tempdir().unwrap();
