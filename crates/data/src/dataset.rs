@@ -98,3 +98,14 @@ fn looks_like_sequences(path: &Path) -> bool {
             })
         })
 }
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn sequence_folders_point_at_convert() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("car_x_data.h5"), b"").unwrap();
+        let e = super::open(dir.path()).err().unwrap().to_string();
+        assert!(e.contains("pi3det convert"), "{e}");
+    }
+}
