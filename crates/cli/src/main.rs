@@ -22,6 +22,8 @@ struct Cli {
 enum Command {
     /// Detect a dataset's format and print its statistics (paper appendix Table 6).
     Info(cmd::info::InfoArgs),
+    /// Write datasets (e.g. the full Pi3DET sequence release: Ouster packets in HDF5) in the released Pi3DET layout.
+    Convert(cmd::convert::ConvertArgs),
     /// Simulate vehicle / drone / quadruped LiDAR sequences in the Pi3DET layout.
     Simulate(pi3det_sim::cli::SimulateArgs),
     /// KITTI-protocol AP (R11/R40; bbox, BEV, 3D, AOS) of detections against ground truth.
@@ -59,6 +61,8 @@ enum BenchCommand {
     Sim(pi3det_sim::cli::BenchArgs),
     /// Box fusion and tracking against ground truth with simulated detectors, and their speed.
     Autolabel(pi3det_autolabel::cli::bench::BenchArgs),
+    /// Decoding the full release's sequences (HDF5 + LZF + Ouster packets → points): frames/s.
+    Sequence(cmd::convert::BenchSequenceArgs),
     /// Our detector's training step and inference against PyTorch running the same network.
     Nn(Forwarded),
 }
@@ -92,6 +96,8 @@ fn main() -> std::process::ExitCode {
     }
     let result = match &cli.command {
         Command::Info(args) => cmd::info::run(args),
+        Command::Convert(args) => cmd::convert::run(args),
+        Command::Bench(BenchCommand::Sequence(args)) => cmd::convert::run_bench(args),
         Command::Simulate(args) => pi3det_sim::cli::run(args).map_err(anyhow::Error::from),
         Command::Eval(args) => pi3det_eval::cli::run(args).map_err(anyhow::Error::from),
         Command::Stats(args) => pi3det_analysis::cli::run(args).map_err(anyhow::Error::from),

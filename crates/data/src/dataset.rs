@@ -58,6 +58,13 @@ pub fn open(path: &Path) -> Result<Box<dyn Dataset>, DataError> {
         if let [one] = pkls.as_slice() {
             return open(one);
         }
+        // The full sequence release is read by pi3det-sequence (which depends on this crate).
+        if looks_like_sequences(path) {
+            return Err(DataError::UnknownFormat {
+                path: path.to_path_buf(),
+                hint: "this looks like the full Pi3DET sequence release (*data*.h5): run `pi3det convert PATH --to pi3det-layout --out DIR` first (`pi3det info` reads it directly)".into(),
+            });
+        }
         return Err(DataError::UnknownFormat {
             path: path.to_path_buf(),
             hint: "expected pi3det_infos_*.pkl, a KITTI velodyne/ folder, or one mmdet3d info .pkl".into(),
@@ -79,4 +86,26 @@ pub fn open(path: &Path) -> Result<Box<dyn Dataset>, DataError> {
         }
     }
     Err(DataError::UnknownFormat { path: path.to_path_buf(), hint: "unrecognised file".into() })
+}
+
+/// A `processed/` folder, or a folder with a `*data*.h5` file (an M3ED-style sequence).
+fn looks_like_sequences(path: &Path) -> bool {
+    path.join("processed").is_dir()
+        || std::fs::read_dir(path).is_ok_and(|d| {
+            d.filter_map(|e| e.ok()).any(|e| {
+                let n = e.file_name().to_string_lossy().into_owned();
+                n.ends_with(".h5") && n.contains("data") || matches!(n.as_str(), "Car" | "Falcon" | "Spot")
+            })
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn sequence_folders_point_at_convert() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("car_x_data.h5"), b"").unwrap();
+        let e = super::open(dir.path()).err().unwrap().to_string();
+        assert!(e.contains("pi3det convert"), "{e}");
+    }
 }

@@ -93,9 +93,15 @@ pub fn summarize(dataset: &dyn Dataset, per_box: bool, progress: &(dyn Fn() + Sy
         .into_par_iter()
         .map(|i| {
             let info = dataset.info(i)?;
-            let channels: Vec<&str> = info.point_channels.iter().map(String::as_str).collect();
-            let read = crate::points::read_bin(&info.points_path, &channels)?;
-            let s = frame_stats(&Frame { info, points: read.cloud }, read.dropped_non_finite, per_box);
+            // Datasets whose points are not `.bin` files (the sequence release's HDF5 packets)
+            // decode them in `load`.
+            let s = if info.points_path.extension().is_some_and(|e| e == "bin") {
+                let channels: Vec<&str> = info.point_channels.iter().map(String::as_str).collect();
+                let read = crate::points::read_bin(&info.points_path, &channels)?;
+                frame_stats(&Frame { info, points: read.cloud }, read.dropped_non_finite, per_box)
+            } else {
+                frame_stats(&dataset.load(i)?, 0, per_box)
+            };
             progress();
             Ok(s)
         })

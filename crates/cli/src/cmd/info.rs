@@ -9,8 +9,12 @@ use pi3det_data::summary::{summarize, Counts, Summary};
 
 #[derive(clap::Args)]
 pub struct InfoArgs {
-    /// A Pi3DET root (pi3det_infos_*.pkl), a KITTI split folder, or an mmdet3d info .pkl.
+    /// A Pi3DET root (pi3det_infos_*.pkl), a KITTI split folder, an mmdet3d info .pkl, or
+    /// sequences of the full Pi3DET release (a folder with *data*.h5, or `processed/` above them).
     pub path: PathBuf,
+    /// Sequences: read the frames every file has when a pose file or ts_start is shorter.
+    #[arg(long)]
+    pub truncate: bool,
     /// Print JSON instead of tables.
     #[arg(long)]
     pub json: bool,
@@ -20,7 +24,9 @@ pub struct InfoArgs {
 }
 
 pub fn run(args: &InfoArgs) -> anyhow::Result<()> {
-    let dataset = pi3det_data::open(&args.path)?;
+    // pi3det-data cannot depend on the sequence reader, so sequences are detected here first.
+    let options = super::convert::sequence_options(args.truncate, Default::default());
+    let dataset = pi3det_sequence::open(&args.path, options)?;
     let bar = ProgressBar::new(dataset.len() as u64)
         .with_style(ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} frames").expect("valid template"))
         .with_message("reading");
