@@ -1,0 +1,5 @@
+//! KITTI label / result lines.
+#![no_main]
+libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    let _ = pi3det_data::kitti::parse_labels(&String::from_utf8_lossy(data), std::path::Path::new("fuzz.txt"));
+});
