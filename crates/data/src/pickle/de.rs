@@ -2,13 +2,14 @@
 
 use std::collections::HashMap;
 
-use super::objects::{into_value, Entries, Item, Obj};
+use super::objects::{into_value, CycleBreaker, Entries, Item, Obj};
 use super::opcodes as op;
 use super::text::{self, IntError};
 use super::{PickleError, Value};
 
 /// Decodes a whole pickle (up to its STOP opcode).
 pub(crate) fn unpickle(data: &[u8]) -> Result<Value, PickleError> {
+    let _cycles = CycleBreaker::start();
     let mut vm =
         Unpickler { data, pos: 0, op_start: 0, stack: Vec::new(), metastack: Vec::new(), memo: HashMap::new() };
     let root = vm.run()?;

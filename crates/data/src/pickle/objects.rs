@@ -4,7 +4,7 @@
 
 use std::cell::RefCell;
 use std::collections::{HashMap, HashSet};
-use std::rc::Rc;
+use std::rc::{Rc, Weak};
 
 use super::numpy::Dtype;
 use super::{ArrayData, NdArray, PickleError, Value};
@@ -26,9 +26,44 @@ pub(crate) enum Item {
     Ref(Shared),
 }
 
+thread_local! {
+    /// Every container of the unpickle running on this thread (see [`CycleBreaker`]).
+    static CREATED: RefCell<Vec<Weak<RefCell<Obj>>>> = const { RefCell::new(Vec::new()) };
+}
+
+/// Frees what reference cycles would keep alive: a malformed (or hostile) pickle can put a
+/// container inside itself through the memo, and `Rc` never frees a cycle. Once an unpickle is
+/// over — its result converted to an owned [`Value`], or an error — every container it made is
+/// emptied when this guard drops.
+pub(crate) struct CycleBreaker(());
+
+impl CycleBreaker {
+    pub fn start() -> Self {
+        CREATED.with(|c| c.borrow_mut().clear());
+        Self(())
+    }
+}
+
+impl Drop for CycleBreaker {
+    fn drop(&mut self) {
+        let created = CREATED.with(|c| std::mem::take(&mut *c.borrow_mut()));
+        let mut children = Vec::new();
+        for weak in created {
+            if let Some(rc) = weak.upgrade() {
+                if let Ok(mut obj) = rc.try_borrow_mut() {
+                    obj.take_children(&mut children);
+                }
+            }
+        }
+        drop(children);
+    }
+}
+
 impl Item {
     pub fn new(obj: Obj) -> Self {
-        Item::Ref(Shared(Rc::new(RefCell::new(obj))))
+        let rc = Rc::new(RefCell::new(obj));
+        CREATED.with(|c| c.borrow_mut().push(Rc::downgrade(&rc)));
+        Item::Ref(Shared(rc))
     }
 
     pub fn str(s: &str) -> Self {
