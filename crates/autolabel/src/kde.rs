@@ -86,23 +86,13 @@ impl Kde {
     /// The density at `point` (length `d`).
     pub fn density(&self, point: &[f64]) -> f64 {
         let d = self.dims;
-        let mut diff = [0.0f64; 8];
         let mut sum = 0.0;
         for (x, w) in self.samples.chunks_exact(d).zip(&self.weights) {
+            // (p − x)ᵀ P (p − x), the differences recomputed: d is 1 to 3 here.
             let mut q = 0.0;
-            if d <= diff.len() {
-                for i in 0..d {
-                    diff[i] = point[i] - x[i];
-                }
-                for i in 0..d {
-                    let row = &self.precision[i * d..(i + 1) * d];
-                    q += diff[i] * row.iter().zip(&diff[..d]).map(|(a, b)| a * b).sum::<f64>();
-                }
-            } else {
-                let diff: Vec<f64> = point.iter().zip(x).map(|(p, x)| p - x).collect();
-                for i in 0..d {
-                    q += diff[i] * (0..d).map(|j| self.precision[i * d + j] * diff[j]).sum::<f64>();
-                }
+            for (i, row) in self.precision.chunks_exact(d).enumerate() {
+                let inner: f64 = row.iter().enumerate().map(|(j, pij)| pij * (point[j] - x[j])).sum();
+                q += (point[i] - x[i]) * inner;
             }
             sum += w * (-0.5 * q).exp();
         }

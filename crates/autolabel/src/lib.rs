@@ -20,7 +20,5 @@ pub use labels::LabelSet;
 
 /// Every frame's info, in dataset order.
 pub fn read_infos(path: &std::path::Path) -> Result<Vec<pi3det_data::FrameInfo>, AutolabelError> {
-    use rayon::prelude::*;
-    let ds = pi3det_data::open(path)?;
-    Ok((0..ds.len()).into_par_iter().map(|i| ds.info(i)).collect::<Result<Vec<_>, _>>()?)
+    Ok(pi3det_data::open(path)?.infos()?)
 }

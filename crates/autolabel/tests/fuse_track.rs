@@ -88,6 +88,8 @@ fn written_labels_read_back_with_track_ids_and_bad_input_is_named() {
     let e = track_dataset(&untimed, &det, &TrackingConfig::default(), None).unwrap_err().to_string();
     assert!(e.contains("no timestamp") && e.contains("--frame-rate"), "{e}");
     assert!(track_dataset(&untimed, &det, &TrackingConfig::default(), Some(10.0)).is_ok());
+    let e = track_dataset(&untimed, &det, &TrackingConfig::default(), Some(0.0)).unwrap_err().to_string();
+    assert!(e.contains("positive"), "{e}");
 
     // A class the fusion config does not know.
     let mut odd = det.clone();

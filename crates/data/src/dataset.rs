@@ -26,6 +26,11 @@ pub trait Dataset: Send + Sync {
     }
     /// Frame metadata and annotations, without points.
     fn info(&self, index: usize) -> Result<FrameInfo, DataError>;
+    /// Every frame's info, in dataset order (read in parallel).
+    fn infos(&self) -> Result<Vec<FrameInfo>, DataError> {
+        use rayon::prelude::*;
+        (0..self.len()).into_par_iter().map(|i| self.info(i)).collect()
+    }
     /// The frame with its points (non-finite points dropped, see [`read_bin`]).
     fn load(&self, index: usize) -> Result<Frame, DataError> {
         let info = self.info(index)?;

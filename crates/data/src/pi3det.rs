@@ -222,18 +222,8 @@ impl Pi3detWriter {
         let info = &frame.info;
         let rel = format!("training/point_cloud/{}.bin", info.id);
         write_bin(&self.root.join(&rel), &frame.points.to_xyzi(), self.overwrite)?;
-        self.push_info(info, &rel);
+        self.infos.push(info_value(info, &rel, &self.root));
         Ok(())
-    }
-
-    fn push_info(&mut self, info: &FrameInfo, rel_points: &str) {
-        let mut value = info_value(info, rel_points);
-        // The camera image is not copied: its path is kept, relative to the root when inside it.
-        if let (Value::Dict(d), Some(image)) = (&mut value, info.cameras.first().and_then(|c| c.image_path.as_ref())) {
-            let image = image.strip_prefix(&self.root).unwrap_or(image);
-            d.push((Value::Str("image_path".into()), Value::Str(image.to_string_lossy().into_owned())));
-        }
-        self.infos.push(value);
     }
 
     /// Writes the info file and returns its path.
@@ -263,7 +253,7 @@ pub fn write_infos(path: &Path, infos: &[FrameInfo], overwrite: bool) -> Result<
             let rel = rel.to_str().ok_or_else(|| {
                 DataError::invalid(&info.points_path, "point file path is not UTF-8; cannot be written to an info file")
             })?;
-            Ok(info_value(info, rel))
+            Ok(info_value(info, rel, &dir))
         })
         .collect::<Result<Vec<_>, DataError>>()?;
     let bytes = pickle::to_vec(&Value::List(values))
@@ -275,7 +265,9 @@ fn array2(rows: usize, cols: usize, data: Vec<f64>) -> Value {
     Value::Array(NdArray { shape: vec![rows, cols], data: data.into() })
 }
 
-fn info_value(info: &FrameInfo, rel_points: &str) -> Value {
+/// The info dict of a frame. The camera image is not copied: its path is kept, relative to
+/// `root` (the info file's folder) when inside it.
+fn info_value(info: &FrameInfo, rel_points: &str, root: &Path) -> Value {
     let names: Vec<String> = info.objects.iter().map(|o| o.name.clone()).collect();
     let boxes: Vec<f32> = info.objects.iter().flat_map(|o| o.box3d.to_array().map(|v| v as f32)).collect();
     let counts: Vec<i64> = info.objects.iter().map(|o| o.num_points.map_or(-1, i64::from)).collect();
@@ -309,6 +301,14 @@ fn info_value(info: &FrameInfo, rel_points: &str) -> Value {
                 ("D", Value::Array(NdArray::from_vec(distortion.clone()))),
             ]),
         ));
+    }
+    let image = info.cameras.first().and_then(|c| c.image_path.as_ref()).map(|image| {
+        let image = std::fs::canonicalize(image).unwrap_or_else(|_| image.clone());
+        let root = std::fs::canonicalize(root).unwrap_or_else(|_| root.to_path_buf());
+        image.strip_prefix(&root).unwrap_or(&image).to_string_lossy().into_owned()
+    });
+    if let Some(image) = &image {
+        d.push(("image_path", Value::Str(image.clone())));
     }
     d.push(("annos", annos));
     Value::dict(d)

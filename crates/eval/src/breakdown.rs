@@ -193,7 +193,7 @@ pub struct AxisError {
 
 /// Reads every frame's annotations of a dataset (in parallel) and computes the breakdown.
 pub fn breakdown_dataset(ds: &dyn Dataset, dets: &Detections, opts: &EvalOptions) -> Result<Breakdown, EvalError> {
-    let infos: Vec<FrameInfo> = (0..ds.len()).into_par_iter().map(|i| ds.info(i)).collect::<Result<_, _>>()?;
+    let infos: Vec<FrameInfo> = ds.infos()?;
     breakdown(&infos, dets, opts)
 }
 

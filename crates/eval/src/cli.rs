@@ -4,7 +4,6 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use pi3det_data::FrameInfo;
-use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::breakdown::{breakdown, format_breakdown, Breakdown};
@@ -137,7 +136,7 @@ impl EvalArgs {
         let opts = self.options()?;
         let t = Instant::now();
         let ds = pi3det_data::open(&self.gt)?;
-        let infos: Vec<FrameInfo> = (0..ds.len()).into_par_iter().map(|i| ds.info(i)).collect::<Result<_, _>>()?;
+        let infos: Vec<FrameInfo> = ds.infos()?;
         let dets = Detections::read(&self.det)?;
         tracing::info!(
             "read {} ground-truth frames and {} detections in {} frames ({:.3} s)",

@@ -33,7 +33,7 @@ pub struct EvalReport {
 
 /// Reads every frame's annotations of a dataset (in parallel) and evaluates.
 pub fn evaluate_dataset(ds: &dyn Dataset, dets: &Detections, opts: &EvalOptions) -> Result<EvalReport, EvalError> {
-    let infos: Vec<FrameInfo> = (0..ds.len()).into_par_iter().map(|i| ds.info(i)).collect::<Result<_, _>>()?;
+    let infos: Vec<FrameInfo> = ds.infos()?;
     evaluate(&infos, dets, opts)
 }
 

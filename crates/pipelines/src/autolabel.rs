@@ -194,6 +194,9 @@ struct Report {
 }
 
 pub fn run_autolabel(args: &AutolabelArgs) -> Result<()> {
+    if !args.tta_rot_deg.is_finite() || !args.min_score.is_finite() {
+        bail!("--tta-rot-deg and --min-score must be finite numbers");
+    }
     let info_name = |split: &str| format!("pi3det_infos_{split}.pkl");
     let split = args.data.split.clone().unwrap_or_else(|| "val".into());
     for name in ["fused.jsonl", "tracked.jsonl", "labels.jsonl", "autolabel.json", &info_name(&split)] {

@@ -139,7 +139,7 @@ impl Source {
         if dataset.is_empty() {
             return Err(ViewerError::invalid(data, "the dataset has no frames"));
         }
-        let infos = (0..dataset.len()).map(|i| dataset.info(i)).collect::<Result<Vec<_>, _>>()?;
+        let infos = dataset.infos()?;
         let shown = match frames {
             Some(spec) => parse_frames(spec, infos.len(), data)?,
             None => 0..infos.len(),

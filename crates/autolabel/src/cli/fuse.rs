@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use super::refuse_existing;
+use super::{config_or_print, refuse_existing};
 use crate::fusion::{fuse, FusionConfig, FusionInput};
 use crate::labels::LabelSet;
 use crate::read_infos;
@@ -38,15 +38,9 @@ pub struct FuseArgs {
 }
 
 pub fn run(args: &FuseArgs) -> Result<(), AutolabelError> {
-    let cfg = match &args.config {
-        Some(p) => FusionConfig::from_file(p)?,
-        None => FusionConfig::default(),
-    };
-    if args.print_config {
-        print!("{}", toml::to_string_pretty(&cfg).map_err(|e| AutolabelError::Config(e.to_string()))?);
+    let Some(mut cfg) = config_or_print(args.config.as_deref(), FusionConfig::from_file, args.print_config)? else {
         return Ok(());
-    }
-    let mut cfg = cfg;
+    };
     if let Some(m) = args.min_members {
         cfg.classes.iter_mut().for_each(|c| c.min_members = m);
     }

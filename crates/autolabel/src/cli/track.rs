@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use super::refuse_existing;
+use super::{config_or_print, refuse_existing};
 use crate::labels::LabelSet;
 use crate::read_infos;
 use crate::tracking::{track_dataset, TrackingConfig};
@@ -34,14 +34,9 @@ pub struct TrackArgs {
 }
 
 pub fn run(args: &TrackArgs) -> Result<(), AutolabelError> {
-    let cfg = match &args.config {
-        Some(p) => TrackingConfig::from_file(p)?,
-        None => TrackingConfig::default(),
-    };
-    if args.print_config {
-        print!("{}", toml::to_string_pretty(&cfg).map_err(|e| AutolabelError::Config(e.to_string()))?);
+    let Some(cfg) = config_or_print(args.config.as_deref(), TrackingConfig::from_file, args.print_config)? else {
         return Ok(());
-    }
+    };
     let need = |v: &Option<PathBuf>, name: &str| {
         v.clone().ok_or_else(|| AutolabelError::Input(format!("--{name} is required")))
     };

@@ -329,7 +329,7 @@ fn prepare_out(out: &Path, overwrite: bool) -> Result<(), AutolabelError> {
 /// Runs the check and writes the drawings and `projection_report.json` under `opts.out`.
 pub fn project(opts: &ProjectOptions) -> Result<ProjectionReport, AutolabelError> {
     let dataset = pi3det_data::open(&opts.data)?;
-    let infos: Vec<FrameInfo> = (0..dataset.len()).map(|i| dataset.info(i)).collect::<Result<_, _>>()?;
+    let infos: Vec<FrameInfo> = dataset.infos()?;
     let dets = match &opts.det {
         Some(p) => Detections::read(p)?,
         None => Detections::default(),

@@ -50,6 +50,9 @@ pub fn track_dataset(
     frame_rate_hz: Option<f64>,
 ) -> Result<Tracked, AutolabelError> {
     cfg.validate()?;
+    if let Some(hz) = frame_rate_hz.filter(|hz| !(hz.is_finite() && *hz > 0.0)) {
+        return Err(AutolabelError::Input(format!("frame rate {hz} Hz: must be a positive number")));
+    }
     labels.check_frames(infos.iter().map(|i| i.id.as_str()))?;
     let mut sequences: BTreeMap<String, Vec<&FrameInfo>> = BTreeMap::new();
     for info in infos {
@@ -64,7 +67,7 @@ pub fn track_dataset(
                 frames.sort_by(|a, b| a.timestamp_s.unwrap_or(0.0).total_cmp(&b.timestamp_s.unwrap_or(0.0)));
                 frames.iter().map(|f| f.timestamp_s.unwrap_or(0.0)).collect::<Vec<_>>()
             }
-            (None, Some(hz)) if hz > 0.0 => {
+            (None, Some(hz)) => {
                 frames.sort_by(|a, b| a.id.cmp(&b.id));
                 (0..frames.len()).map(|i| i as f64 / hz).collect()
             }
