@@ -8,7 +8,7 @@ PY="${PYTHON:-python3}"
 if [ ! -x "$VENV/bin/python" ]; then
   "$PY" -m venv "$VENV"
 fi
-"$VENV/bin/python" -m pip install --quiet --upgrade pip
-"$VENV/bin/python" -m pip install --quiet "numpy<2" numba
-"$VENV/bin/python" -m pip install --quiet --no-deps "mmdet3d==1.4.0"  # the version the cross-check was written against
+"$VENV/bin/python" -m pip install --quiet --no-cache-dir --upgrade pip
+"$VENV/bin/python" -m pip install --quiet --no-cache-dir "numpy<2" numba
+"$VENV/bin/python" -m pip install --quiet --no-cache-dir --no-deps "mmdet3d==1.4.0"  # the version the cross-check was written against
 echo "reference evaluator: $("$VENV/bin/python" "$ROOT/scripts/crosscheck_eval/reference.py" --locate)"
