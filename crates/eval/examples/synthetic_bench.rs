@@ -52,6 +52,8 @@ fn write(s: &common::synthetic::Split, dir: &Path) {
             bbox: None,
             alpha: None,
             track_ids: None,
+            timestamp_s: None,
+            latency_ms: None,
         };
         jsonl.push_str(&serde_json::to_string(&line).expect("json"));
         jsonl.push('\n');

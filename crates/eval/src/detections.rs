@@ -19,7 +19,8 @@
 //!   `boxes_lidar` rows are `[x, y, z_center, dx, dy, dz, heading]` in the LiDAR frame (metres,
 //!   radians; z at the box centre). Optional per-detection arrays: `bbox` (`[x1, y1, x2, y2]`
 //!   image box, pixels) and `alpha` (observation angle); without them both are derived as
-//!   OpenPCDet does. Frames without detections may be written with empty arrays or left out;
+//!   OpenPCDet does. `track_ids`, `timestamp_s` and `latency_ms` (written by `pi3det track` and
+//!   `pi3det run`) are read and ignored. Frames without detections may be written with empty arrays or left out;
 //!   blank lines are skipped. [`JsonlFrame`] is this line as a serde type.
 //!
 //! A frame id may appear only once. Frames of the ground truth missing here have no detections.
@@ -71,6 +72,12 @@ pub struct JsonlFrame {
     /// Track ids (`pi3det track`), one per box; the evaluator ignores them.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub track_ids: Option<Vec<u64>>,
+    /// The sweep's time (`pi3det run`); the evaluator ignores it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub timestamp_s: Option<f64>,
+    /// Where the frame's time went, by stage (`pi3det run`); the evaluator ignores it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub latency_ms: Option<std::collections::BTreeMap<String, f64>>,
 }
 
 impl JsonlFrame {
@@ -84,6 +91,8 @@ impl JsonlFrame {
             bbox: None,
             alpha: None,
             track_ids: None,
+            timestamp_s: None,
+            latency_ms: None,
         }
     }
 }

@@ -292,27 +292,36 @@ impl Sequence {
             // which serialise threads on the address-space lock.
             static SWEEP: std::cell::RefCell<Sweep> = std::cell::RefCell::new(Sweep::default());
         }
-        let data = SWEEP.with(|cell| -> Result<Vec<f32>> {
+        let points = SWEEP.with(|cell| -> Result<PointCloud> {
             let mut sweep = cell.borrow_mut();
             self.read_sweep(k, &mut sweep)?;
-            let t0 = (0..sweep.w).filter(|&v| sweep.column_valid[v]).map(|v| sweep.column_timestamp_ns[v]).min();
-            let t0 = t0.unwrap_or(0);
-            let mut data = Vec::with_capacity(sweep.range_mm.len() * CHANNELS.len());
-            self.lut().for_each_point(&sweep, |p| {
-                data.extend_from_slice(&[
-                    p.xyz[0] as f32,
-                    p.xyz[1] as f32,
-                    p.xyz[2] as f32,
-                    intensity(p.reflectivity),
-                    (p.timestamp_ns.saturating_sub(t0) as f64 * 1e-9) as f32,
-                    f32::from(p.beam),
-                ]);
-            });
-            Ok(data)
+            Ok(sweep_points_cloud(self.lut(), &sweep)?)
         })?;
-        let points = PointCloud::from_vec(data, CHANNELS.iter().map(|s| s.to_string()).collect())?;
         Ok(Frame { info: self.info(k), points })
     }
+}
+
+/// The first valid column's timestamp of a sweep (ns, sensor clock), if any column is valid.
+pub fn sweep_start_ns(sweep: &Sweep) -> Option<u64> {
+    (0..sweep.w).filter(|&v| sweep.column_valid[v]).map(|v| sweep.column_timestamp_ns[v]).min()
+}
+
+/// A decoded sweep's returns as a point cloud with [`CHANNELS`] (zero ranges dropped), as the
+/// dataset reader and the live UDP source both give them.
+pub fn sweep_points_cloud(lut: &XyzLut, sweep: &Sweep) -> std::result::Result<PointCloud, DataError> {
+    let t0 = sweep_start_ns(sweep).unwrap_or(0);
+    let mut data = Vec::with_capacity(sweep.range_mm.len() * CHANNELS.len());
+    lut.for_each_point(sweep, |p| {
+        data.extend_from_slice(&[
+            p.xyz[0] as f32,
+            p.xyz[1] as f32,
+            p.xyz[2] as f32,
+            intensity(p.reflectivity),
+            (p.timestamp_ns.saturating_sub(t0) as f64 * 1e-9) as f32,
+            f32::from(p.beam),
+        ]);
+    });
+    PointCloud::from_vec(data, CHANNELS.iter().map(|s| s.to_string()).collect())
 }
 
 /// `Ln_T_L0` maps the first frame's LiDAR coordinates into frame n's, so the pose of frame n in

@@ -105,6 +105,21 @@ impl PacketFormat {
         self.packet_header_bytes + self.columns_per_packet * self.column_bytes() + self.packet_footer_bytes
     }
 
+    /// The frame id of one packet (LEGACY: the first column's; RNG19: the packet header's), and
+    /// the measurement id and timestamp (ns) of its first column. `None` when `packet` is not
+    /// one packet long.
+    pub fn packet_ids(&self, packet: &[u8]) -> Option<(u16, u16, u64)> {
+        if packet.len() != self.packet_bytes() {
+            return None;
+        }
+        let col = self.packet_header_bytes;
+        let frame_id = match self.profile {
+            UdpProfile::Legacy => u16_at(packet, col + 10),
+            UdpProfile::Rng19Rfl8Sig16Nir16 => u16_at(packet, 2),
+        };
+        Some((frame_id, u16_at(packet, col + 8), u64_at(packet, col)))
+    }
+
     /// Decodes `packets` (concatenated, each [`packet_bytes`](Self::packet_bytes) long) into
     /// `sweep`, which is reset first. The caller checks the packet size against the file once.
     pub fn decode(&self, packets: &[u8], sweep: &mut Sweep) {

@@ -1,0 +1,130 @@
+//! A loopback replayer of synthetic Ouster packet streams with the faults of a real network:
+//! lost, reordered, duplicated and truncated packets, garbage datagrams, a frame-id wrap and a
+//! sensor restart. Used by the live tests and `pi3det bench live`.
+
+use std::net::{SocketAddr, UdpSocket};
+use std::time::{Duration, Instant};
+
+use pi3det_sequence::synth::{sweep_packets, SynthSpec};
+
+/// Probabilities per packet.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Faults {
+    pub loss: f64,
+    pub reorder: f64,
+    pub duplicate: f64,
+    pub truncate: f64,
+    /// A garbage datagram (random bytes, random length) after a packet.
+    pub garbage: f64,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplayPlan {
+    pub sweeps: usize,
+    /// The first sweep's frame id (near 65535 to test the wrap).
+    pub first_frame_id: u16,
+    /// From this sweep on the sensor "restarts": frame ids begin again at 0.
+    pub restart_at: Option<usize>,
+    pub faults: Faults,
+    pub seed: u64,
+}
+
+/// splitmix64: enough randomness for faults, no dependency.
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Self {
+        Self(seed)
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    pub fn chance(&mut self, p: f64) -> bool {
+        let u = (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+        p > 0.0 && u < p
+    }
+}
+
+/// The frame id of sweep `k` under `plan`.
+pub fn frame_id(plan: &ReplayPlan, k: usize) -> u16 {
+    match plan.restart_at {
+        Some(r) if k >= r => (k - r) as u16,
+        _ => plan.first_frame_id.wrapping_add(k as u16),
+    }
+}
+
+/// The datagrams of each sweep, faults applied, in sending order (a reordered packet may move
+/// into the next sweep's list).
+pub fn datagrams(spec: &SynthSpec, plan: &ReplayPlan) -> Vec<Vec<Vec<u8>>> {
+    let mut rng = Rng::new(plan.seed);
+    let mut content = Rng::new(plan.seed ^ 0x5eed);
+    let packet_bytes = {
+        let one = sweep_packets(spec, 0, 0, &mut || 1);
+        one.len() / spec.columns.div_ceil(16)
+    };
+    let mut out: Vec<Vec<Vec<u8>>> = Vec::with_capacity(plan.sweeps);
+    let mut carry: Option<Vec<u8>> = None;
+    for k in 0..plan.sweeps {
+        let t0 = 1_000_000_000 + k as u64 * 100_000_000;
+        let bytes = sweep_packets(spec, usize::from(frame_id(plan, k)), t0, &mut || content.next_u64());
+        let mut sweep = Vec::new();
+        for p in bytes.chunks_exact(packet_bytes) {
+            let f = &plan.faults;
+            if rng.chance(f.loss) {
+                continue;
+            }
+            let mut p = p.to_vec();
+            if rng.chance(f.truncate) {
+                p.truncate((rng.next_u64() as usize) % p.len());
+            }
+            if rng.chance(f.reorder) && carry.is_none() {
+                carry = Some(p);
+                continue;
+            }
+            sweep.push(p.clone());
+            if let Some(c) = carry.take() {
+                sweep.push(c);
+            }
+            if rng.chance(f.duplicate) {
+                sweep.push(p);
+            }
+            if rng.chance(f.garbage) {
+                let n = 1 + (rng.next_u64() as usize) % 2000;
+                sweep.push((0..n).map(|_| rng.next_u64() as u8).collect());
+            }
+        }
+        out.push(sweep);
+    }
+    if let (Some(c), Some(last)) = (carry, out.last_mut()) {
+        last.push(c);
+    }
+    out
+}
+
+/// Sends sweeps to `to` at `rate_hz`, each sweep's datagrams spread over its period as a sensor
+/// does (a burst would overflow the receiver's socket buffer). Returns datagrams sent.
+pub fn send(sweeps: &[Vec<Vec<u8>>], to: SocketAddr, rate_hz: f64) -> std::io::Result<usize> {
+    let socket = UdpSocket::bind(if to.is_ipv4() { "127.0.0.1:0" } else { "[::1]:0" })?;
+    let period = Duration::from_secs_f64(1.0 / rate_hz.max(1e-3));
+    let start = Instant::now();
+    let mut sent = 0;
+    for (k, sweep) in sweeps.iter().enumerate() {
+        let n = sweep.len().max(1) as u32;
+        for (j, d) in sweep.iter().enumerate() {
+            let due = start + period * k as u32 + period * j as u32 / n;
+            let now = Instant::now();
+            if due > now {
+                std::thread::sleep(due - now);
+            }
+            socket.send_to(d, to)?;
+            sent += 1;
+        }
+    }
+    Ok(sent)
+}
