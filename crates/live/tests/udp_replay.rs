@@ -3,6 +3,7 @@
 //! per sweep that meets the coverage rule, with the points the sequence decoder gives.
 
 use std::net::SocketAddr;
+use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 
 use pi3det_live::replay::{self, Faults, ReplayPlan};
@@ -34,10 +35,13 @@ fn run(
     let got = Arc::new(Mutex::new(Vec::new()));
     let sink = got.clone();
     let receiver = std::thread::spawn(move || {
-        src.run(&mut |f| {
-            sink.lock().unwrap().push(f);
-            Flow::Continue
-        })
+        src.run(
+            &mut |f| {
+                sink.lock().unwrap().push(f);
+                Flow::Continue
+            },
+            &AtomicBool::new(false),
+        )
         .unwrap()
     });
     std::thread::sleep(std::time::Duration::from_millis(50));

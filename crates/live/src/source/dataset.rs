@@ -1,5 +1,6 @@
 //! Frames of a dataset folder as a stream (to test the live path on data with ground truth).
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -31,10 +32,13 @@ impl Source for DatasetSource {
         self.rate_hz.is_some()
     }
 
-    fn run(&mut self, emit: &mut dyn FnMut(LiveFrame) -> Flow) -> Result<SourceReport> {
+    fn run(&mut self, emit: &mut dyn FnMut(LiveFrame) -> Flow, stop: &AtomicBool) -> Result<SourceReport> {
         let mut report = SourceReport::default();
         let start = Instant::now();
         for (k, &i) in self.indices.iter().enumerate() {
+            if stop.load(Ordering::Relaxed) {
+                break;
+            }
             pace(start, k as u64, self.rate_hz);
             let frame = self.dataset.load(i)?;
             let stamp_ns = frame.info.timestamp_s.map_or(0, |t| (t * 1e9).max(0.0) as u64);

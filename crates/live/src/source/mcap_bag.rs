@@ -2,6 +2,7 @@
 //! one topic, CDR-encoded, read lazily from a memory map, in log-time order as stored.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use pi3det_data::{Frame, FrameInfo};
@@ -102,11 +103,14 @@ impl Source for McapSource {
         self.rate_hz.is_some()
     }
 
-    fn run(&mut self, emit: &mut dyn FnMut(LiveFrame) -> Flow) -> Result<SourceReport> {
+    fn run(&mut self, emit: &mut dyn FnMut(LiveFrame) -> Flow, stop: &AtomicBool) -> Result<SourceReport> {
         let mut report = SourceReport::default();
         let start = Instant::now();
         let stream = mcap::MessageStream::new(&self.map).map_err(|e| mcap_error(&self.path, e))?;
         for m in stream {
+            if stop.load(Ordering::Relaxed) {
+                break;
+            }
             let m = m.map_err(|e| mcap_error(&self.path, e))?;
             if m.channel.topic != self.topic {
                 continue;

@@ -21,6 +21,7 @@ pub mod pointcloud2;
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use pi3det_data::Frame;
@@ -78,8 +79,9 @@ pub trait Source: Send {
     /// Whether the data arrives whether or not we are ready (sweeps are then dropped, not
     /// waited for, when inference falls behind).
     fn is_live(&self) -> bool;
-    /// Produces sweeps until the stream ends or `emit` answers [`Flow::Stop`].
-    fn run(&mut self, emit: &mut dyn FnMut(LiveFrame) -> Flow) -> Result<SourceReport>;
+    /// Produces sweeps until the stream ends, `emit` answers [`Flow::Stop`] or `stop` is set
+    /// (checked at least every few hundred milliseconds, with or without data).
+    fn run(&mut self, emit: &mut dyn FnMut(LiveFrame) -> Flow, stop: &AtomicBool) -> Result<SourceReport>;
 }
 
 /// A parsed `--source` address.

@@ -17,6 +17,7 @@
 
 use std::net::{SocketAddr, UdpSocket};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use pi3det_data::{Frame, FrameInfo};
@@ -263,15 +264,15 @@ impl Source for UdpSource {
         true
     }
 
-    fn run(&mut self, emit: &mut dyn FnMut(LiveFrame) -> Flow) -> Result<SourceReport> {
+    fn run(&mut self, emit: &mut dyn FnMut(LiveFrame) -> Flow, stop: &AtomicBool) -> Result<SourceReport> {
         let mut buf = vec![0u8; 65_536];
         self.socket
             .set_read_timeout(Some(self.options.idle))
             .map_err(|e| LiveError::uri(self.describe(), e.to_string()))?;
         let mut last_packet = Instant::now();
         let mut n = 0u64;
-        loop {
-            let (done, stop) = match self.socket.recv_from(&mut buf) {
+        while !stop.load(Ordering::Relaxed) {
+            let (done, finished) = match self.socket.recv_from(&mut buf) {
                 Ok((len, _)) => {
                     last_packet = Instant::now();
                     (self.assembler.push(&buf[..len]), false)
@@ -293,7 +294,7 @@ impl Source for UdpSource {
                     break;
                 }
             }
-            if stop {
+            if finished {
                 break;
             }
         }
