@@ -48,6 +48,9 @@ enum Command {
     Adapt(Forwarded),
     /// Label frames with several detectors × test-time augmentation, box fusion and tracking.
     Autolabel(Forwarded),
+    /// Run a detector on a live or recorded stream (Ouster UDP, ROS 2 bag, dataset) into JSON
+    /// lines / Foxglove MCAP, with latency percentiles.
+    Run(Forwarded),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
     Demo(Forwarded),
     /// Benchmarks that print a table.
@@ -65,6 +68,8 @@ enum BenchCommand {
     Sequence(cmd::convert::BenchSequenceArgs),
     /// Our detector's training step and inference against PyTorch running the same network.
     Nn(Forwarded),
+    /// `pi3det run` end to end on loopback: latency per sweep (with and without VPP) and a soak.
+    Live(Forwarded),
 }
 
 fn main() -> std::process::ExitCode {
@@ -81,7 +86,8 @@ fn main() -> std::process::ExitCode {
             | Command::Adapt(_)
             | Command::Autolabel(_)
             | Command::Demo(_)
-            | Command::Bench(BenchCommand::Nn(_))
+            | Command::Run(_)
+            | Command::Bench(BenchCommand::Nn(_) | BenchCommand::Live(_))
     ) {
         return finish(cmd::torch::run(&args));
     }
@@ -115,7 +121,8 @@ fn main() -> std::process::ExitCode {
         | Command::Adapt(_)
         | Command::Autolabel(_)
         | Command::Demo(_)
-        | Command::Bench(BenchCommand::Nn(_)) => {
+        | Command::Run(_)
+        | Command::Bench(BenchCommand::Nn(_) | BenchCommand::Live(_)) => {
             unreachable!("handed to pi3det-torch above")
         }
     };

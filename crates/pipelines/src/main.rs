@@ -31,6 +31,9 @@ enum Command {
     Adapt(nn::AdaptArgs),
     /// Label frames with several detectors × test-time augmentation, box fusion and tracking.
     Autolabel(pi3det_pipelines::autolabel::AutolabelArgs),
+    /// Run a detector on a live or recorded stream (Ouster UDP, ROS 2 bag, dataset) into JSON
+    /// lines / Foxglove MCAP, with latency percentiles.
+    Run(pi3det_pipelines::run::RunArgs),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
     Demo(pi3det_pipelines::demo::DemoArgs),
     /// Benchmarks that print a table.
@@ -42,6 +45,8 @@ enum Command {
 enum BenchCommand {
     /// Our detector's training step and inference against PyTorch running the same network.
     Nn(nn::BenchNnArgs),
+    /// `pi3det run` end to end on loopback: latency per sweep (with and without VPP) and a soak.
+    Live(pi3det_pipelines::bench_live::BenchLiveArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -60,7 +65,9 @@ fn main() -> std::process::ExitCode {
         Command::Detect(args) => nn::run_detect(args).map_err(anyhow::Error::from),
         Command::Adapt(args) => nn::run_adapt(args).map(|_| ()).map_err(anyhow::Error::from),
         Command::Autolabel(args) => pi3det_pipelines::autolabel::run_autolabel(args),
+        Command::Run(args) => pi3det_pipelines::run::run(args),
         Command::Demo(args) => pi3det_pipelines::demo::run_demo(args).map(|_| ()),
+        Command::Bench(BenchCommand::Live(args)) => pi3det_pipelines::bench_live::run(args),
         Command::Bench(BenchCommand::Nn(args)) => nn::run_bench_nn(args, &mut |n| {
             pi3det_pipelines::frames::vehicle_frames(n).map_err(|e| NnError::Input(format!("simulation: {e}")))
         })

@@ -42,7 +42,8 @@ pub fn is_help_for_forwarded(args: &[OsString]) -> bool {
     }
     matches!(
         words.as_slice(),
-        ["help", "train" | "detect" | "adapt" | "autolabel" | "demo", ..] | ["help", "bench", "nn"]
+        ["help", "train" | "detect" | "adapt" | "autolabel" | "demo" | "run" | "export", ..]
+            | ["help", "bench", "nn" | "live"]
     )
 }
 
@@ -70,7 +71,7 @@ pub fn locate() -> anyhow::Result<PathBuf> {
         }
     }
     bail!(
-        "the detector commands (train, detect, demo, bench nn) run in the {EXE} executable, which is neither beside {} nor on PATH; \
+        "the detector commands (train, detect, adapt, autolabel, run, export, demo, bench nn, bench live) run in the {EXE} executable, which is neither beside {} nor on PATH; \
          build it with `cargo build --release -p pi3det-pipelines` (scripts/demo builds both binaries; it needs libtorch, see scripts/setup-torch), \
          or set PI3DET_TORCH to its path",
         exe.as_deref().map_or_else(|| "this executable".into(), |e| e.display().to_string())

@@ -1,0 +1,161 @@
+//! `pi3det bench live`: `pi3det run`'s path end to end on this machine — a loopback replayer
+//! sends an OS1-64 packet stream (1024 × 10 Hz, LEGACY) over UDP, or a dataset is streamed at
+//! 10 Hz, and the detector runs on every sweep it can take — with and without Virtual Platform
+//! Pose. Prints latency percentiles (sweep complete → detections), drops and memory.
+//!
+//! `pi3det bench live --ckpt runs/demo_net/pointpillars_vehicle/final.safetensors [--data runs/demo/seed_0/data/quadruped/val] [--seconds 600]`
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use pi3det_live::replay::{self, Faults, ReplayPlan};
+use pi3det_live::source::dataset::DatasetSource;
+use pi3det_live::source::ouster_udp::{UdpOptions, UdpSource};
+use pi3det_live::Source;
+use pi3det_nn::cli::args::{open_subset, DeviceArgs};
+use pi3det_sequence::synth::{metadata_json, SynthSpec};
+
+use crate::run::{stream, LiveDetector, RunArgs, RunSummary};
+
+/// Latency of `pi3det run` on loopback, with and without VPP; `--seconds 600` for a soak.
+#[derive(clap::Args, Debug, Clone)]
+pub struct BenchLiveArgs {
+    #[arg(long)]
+    pub ckpt: PathBuf,
+    /// Stream this dataset's frames at `--rate` instead of synthetic Ouster packets over UDP.
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Seconds per configuration.
+    #[arg(long, default_value_t = 30.0)]
+    pub seconds: f64,
+    /// Sweeps per second the sensor sends.
+    #[arg(long, default_value_t = 10.0)]
+    pub rate: f64,
+    /// VPP's virtual sensor height for the "with VPP" rows.
+    #[arg(long, default_value_t = 1.887)]
+    pub vpp_height: f64,
+    /// Only the rows without VPP, or only those with.
+    #[arg(long, value_parser = ["both", "off", "on"], default_value = "both")]
+    pub vpp: String,
+    #[arg(long, default_value_t = 2)]
+    pub queue: usize,
+    #[command(flatten)]
+    pub device: DeviceArgs,
+}
+
+fn udp_source(dir: &std::path::Path, args: &BenchLiveArgs) -> Result<(Box<dyn Source>, std::thread::JoinHandle<()>)> {
+    let spec = SynthSpec::os1_64("bench", 1);
+    let md = dir.join("os1_64.json");
+    std::fs::write(&md, metadata_json(&spec)).with_context(|| md.display().to_string())?;
+    let mut o = UdpOptions::new("127.0.0.1:0".parse()?, md);
+    o.timeout_s = Some(1.0);
+    let src = UdpSource::open(&o)?;
+    let addr: SocketAddr = src.local_addr().context("no local address")?;
+    let sweeps = (args.seconds * args.rate).ceil() as usize;
+    // One second of distinct sweeps, sent over and over with running frame ids.
+    let one_s = args.rate.ceil() as usize;
+    let rate = args.rate;
+    let sender = std::thread::spawn(move || {
+        let mut sent = 0;
+        while sent < sweeps {
+            let n = one_s.min(sweeps - sent);
+            let plan = ReplayPlan {
+                sweeps: n,
+                first_frame_id: sent as u16,
+                restart_at: None,
+                faults: Faults::default(),
+                seed: 1,
+            };
+            let batch = replay::datagrams(&spec, &plan);
+            if replay::send(&batch, addr, rate).is_err() {
+                return;
+            }
+            sent += n;
+        }
+    });
+    Ok((Box::new(src), sender))
+}
+
+fn one(args: &BenchLiveArgs, vpp: bool, dir: &std::path::Path) -> Result<RunSummary> {
+    let run_args = RunArgs {
+        ckpt: args.ckpt.clone(),
+        source: String::new(),
+        sinks: Vec::new(),
+        vpp_height: vpp.then_some(args.vpp_height),
+        queue: args.queue,
+        max_frames: None,
+        score_threshold: None,
+        report: None,
+        overwrite: false,
+        device: args.device.clone(),
+    };
+    let detector = LiveDetector::load(&run_args)?;
+    let (source, sender): (Box<dyn Source>, Option<std::thread::JoinHandle<()>>) = match &args.data {
+        Some(d) => {
+            let s = open_subset(d, None, None, 0)?;
+            let n = ((args.seconds * args.rate).ceil() as usize).max(1);
+            let indices: Vec<usize> = (0..n).map(|k| s.indices[k % s.indices.len().max(1)]).collect();
+            (Box::new(DatasetSource::new(s.dataset, indices, Some(args.rate), d.display().to_string())), None)
+        }
+        None => {
+            let (s, h) = udp_source(dir, args)?;
+            (s, Some(h))
+        }
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let tty = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let summary = stream(&detector, source, &mut [], args.queue, None, stop.clone(), &mut |s| {
+        if tty {
+            eprint!("\r  {} sweeps, {} dropped, {}   ", s.processed, s.dropped_in_queue, s.total.summary());
+        }
+    })?;
+    if tty {
+        eprintln!();
+    }
+    stop.store(true, Ordering::Relaxed);
+    if let Some(h) = sender {
+        let _ = h.join();
+    }
+    Ok(summary)
+}
+
+pub fn run(args: &BenchLiveArgs) -> Result<()> {
+    let dir = tempfile::tempdir()?;
+    let modes: &[bool] = match args.vpp.as_str() {
+        "off" => &[false],
+        "on" => &[true],
+        _ => &[false, true],
+    };
+    let input = match &args.data {
+        Some(d) => format!("{} at {} Hz", d.display(), args.rate),
+        None => format!("OS1-64 1024 packets over UDP loopback at {} Hz", args.rate),
+    };
+    println!("pi3det run on {input}, {:.0} s per row, queue {}", args.seconds, args.queue);
+    println!("| VPP | sweeps in | processed | dropped | p50 ms | p95 ms | p99 ms | max ms | mean: wait / pillars / network / NMS ms | RSS start → end MB |");
+    println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- | --- |");
+    for &vpp in modes {
+        let s = one(args, vpp, dir.path())?;
+        let mb = |kb: Option<u64>| kb.map_or("?".into(), |k| format!("{:.0}", k as f64 / 1024.0));
+        println!(
+            "| {} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} / {:.1} / {:.1} / {:.1} | {} → {} |",
+            if vpp { format!("on ({} m)", args.vpp_height) } else { "off".into() },
+            s.source.sweeps,
+            s.processed,
+            s.dropped_in_queue,
+            s.total.quantile_ms(0.5),
+            s.total.quantile_ms(0.95),
+            s.total.quantile_ms(0.99),
+            s.total.max_ms(),
+            s.queue.mean_ms(),
+            s.prep.mean_ms(),
+            s.network.mean_ms(),
+            s.post.mean_ms(),
+            mb(s.rss_start_kb),
+            mb(s.rss_end_kb)
+        );
+    }
+    Ok(())
+}
