@@ -51,6 +51,8 @@ enum Command {
     /// Run a detector on a live or recorded stream (Ouster UDP, ROS 2 bag, dataset) into JSON
     /// lines / Foxglove MCAP, with latency percentiles.
     Run(Forwarded),
+    /// Export a checkpoint's network as TorchScript (model.pt [+ model.roi.pt] + model.toml).
+    Export(Forwarded),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
     Demo(Forwarded),
     /// Benchmarks that print a table.
@@ -87,6 +89,7 @@ fn main() -> std::process::ExitCode {
             | Command::Autolabel(_)
             | Command::Demo(_)
             | Command::Run(_)
+            | Command::Export(_)
             | Command::Bench(BenchCommand::Nn(_) | BenchCommand::Live(_))
     ) {
         return finish(cmd::torch::run(&args));
@@ -122,6 +125,7 @@ fn main() -> std::process::ExitCode {
         | Command::Autolabel(_)
         | Command::Demo(_)
         | Command::Run(_)
+        | Command::Export(_)
         | Command::Bench(BenchCommand::Nn(_) | BenchCommand::Live(_)) => {
             unreachable!("handed to pi3det-torch above")
         }

@@ -276,6 +276,61 @@ impl Detector {
             .collect()
     }
 
+    /// The network up to the dense head, as tensors `[bev, head outputs…]` (eval mode): what a
+    /// TorchScript export of the first stage computes from `(features, cells)`.
+    pub fn dense_tensors(&self, x: &Inputs) -> Result<Vec<Tensor>> {
+        let NeckOutput { bev, .. } = self.bev_features(x, false);
+        let dense = self.dense_head.forward_t(&bev, false);
+        let mut out = vec![bev];
+        out.extend(self.dense_head.output_tensors(&dense)?);
+        Ok(out)
+    }
+
+    /// The second stage on `rois` `[B, N, 7]` as tensors `[features, iou_logits, box_codes,
+    /// rois]` (eval mode); `None` without a second stage.
+    pub fn roi_tensors(&self, bev: &Tensor, rois: &Tensor) -> Result<Option<Vec<Tensor>>> {
+        match &self.roi_head {
+            Some(stage) => Ok(Some(stage.forward_t(bev, rois, &self.prep.map, false)?.to_tensors())),
+            None => Ok(None),
+        }
+    }
+
+    /// RoIs per frame a traced second stage takes (the test-time proposal limit).
+    pub fn fixed_roi_count(&self) -> Option<usize> {
+        self.roi_head.as_ref().map(|s| s.proposal_config().nms_post_max_test)
+    }
+
+    /// A [`Forward`] of one frame rebuilt from [`dense_tensors`](Self::dense_tensors)' result,
+    /// the second stage (if any) run by `roi` on the proposals padded to
+    /// [`fixed_roi_count`](Self::fixed_roi_count): the inference path of an exported model,
+    /// ready for [`post_process`](Self::post_process).
+    pub fn forward_from_tensors(
+        &self,
+        mut dense: Vec<Tensor>,
+        roi: &mut dyn FnMut(&Tensor, &Tensor) -> Result<Vec<Tensor>>,
+    ) -> Result<Forward> {
+        if dense.is_empty() {
+            return Err(NnError::Config("an exported model returned no tensors".into()));
+        }
+        let bev = dense.remove(0);
+        let dense = self.dense_head.output_from_tensors(dense)?;
+        let roi = match &self.roi_head {
+            Some(stage) => {
+                let props = self.proposals(stage.as_ref(), &dense, 1, false)?;
+                let n = stage.proposal_config().nms_post_max_test;
+                let batch = ProposalBatch::collate_to(&props, n).to_device(self.device());
+                let t = roi(&bev, &batch.rois)?;
+                let k = t.len();
+                let out = RoiOutput::from_tensors(t).ok_or_else(|| {
+                    NnError::Config(format!("the exported second stage returned {k} tensors, expected 4"))
+                })?;
+                Some(RoiStage { out, targets: None, proposals: Some(batch) })
+            }
+            None => None,
+        };
+        Ok(Forward { bev, dense, roi, rotation_deg: None })
+    }
+
     /// Inference on prepared inputs (no gradients, eval-mode batch norm); detector frame.
     pub fn predict(&self, x: &Inputs) -> Result<Vec<Vec<Detection>>> {
         let _guard = tch::no_grad_guard();

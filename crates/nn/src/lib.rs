@@ -41,6 +41,7 @@ pub mod detector;
 pub mod device;
 pub mod error;
 pub mod eval;
+pub mod export;
 pub mod losses;
 pub mod necks;
 pub mod optim;

@@ -9,6 +9,7 @@
 //! | [`bench_live`] | `pi3det bench live`: `pi3det run` on loopback, latency with and without VPP, soak |
 //! | [`demo`] | `pi3det demo`: simulate vehicle / drone / quadruped data, train on the vehicle, evaluate on all three; several seeds with mean ± std |
 //! | [`run`] | `pi3det run`: a detector on a live or recorded stream (Ouster UDP, ROS 2 bag, dataset) into JSON lines / Foxglove MCAP, with latency percentiles |
+//! | [`export`] | `pi3det export`: a checkpoint's network as TorchScript, traced on one frame |
 //! | [`frames`] | simulated frames where a command needs some and was given none (`bench nn`) |
 //!
 //! Later adaptation and benchmark drivers belong here too.
@@ -16,5 +17,6 @@
 pub mod autolabel;
 pub mod bench_live;
 pub mod demo;
+pub mod export;
 pub mod frames;
 pub mod run;

@@ -34,6 +34,8 @@ enum Command {
     /// Run a detector on a live or recorded stream (Ouster UDP, ROS 2 bag, dataset) into JSON
     /// lines / Foxglove MCAP, with latency percentiles.
     Run(pi3det_pipelines::run::RunArgs),
+    /// Export a checkpoint's network as TorchScript (model.pt [+ model.roi.pt] + model.toml).
+    Export(pi3det_pipelines::export::ExportArgs),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
     Demo(pi3det_pipelines::demo::DemoArgs),
     /// Benchmarks that print a table.
@@ -66,6 +68,7 @@ fn main() -> std::process::ExitCode {
         Command::Adapt(args) => nn::run_adapt(args).map(|_| ()).map_err(anyhow::Error::from),
         Command::Autolabel(args) => pi3det_pipelines::autolabel::run_autolabel(args),
         Command::Run(args) => pi3det_pipelines::run::run(args),
+        Command::Export(args) => pi3det_pipelines::export::run(args),
         Command::Demo(args) => pi3det_pipelines::demo::run_demo(args).map(|_| ()),
         Command::Bench(BenchCommand::Live(args)) => pi3det_pipelines::bench_live::run(args),
         Command::Bench(BenchCommand::Nn(args)) => nn::run_bench_nn(args, &mut |n| {

@@ -25,6 +25,7 @@ use pi3det_live::{
 use pi3det_nn::cli::args::{open_subset, DeviceArgs};
 use pi3det_nn::data_loader::prepare_frame;
 use pi3det_nn::detect::to_objects;
+use pi3det_nn::export::TorchScriptModel;
 use pi3det_nn::preprocess::Preprocessor;
 use pi3det_nn::Detector;
 
@@ -32,7 +33,8 @@ use pi3det_nn::Detector;
 /// write detections as they are made (JSON lines, Foxglove MCAP).
 #[derive(clap::Args, Debug, Clone)]
 pub struct RunArgs {
-    /// Checkpoint (.safetensors) of `pi3det train` or `pi3det adapt`.
+    /// Checkpoint (.safetensors) of `pi3det train` or `pi3det adapt`, or a model exported by
+    /// `pi3det export` (.pt, with its .toml and .roi.pt beside it).
     #[arg(long)]
     pub ckpt: PathBuf,
     /// `ouster-udp://HOST:PORT?metadata=FILE`, `mcap://BAG.mcap?topic=/points[&rate=HZ]`,
@@ -67,9 +69,15 @@ pub struct RunArgs {
     pub device: DeviceArgs,
 }
 
+/// The network: a checkpoint in Rust, or an exported TorchScript model (`pi3det export`).
+enum Net {
+    Native(Detector),
+    Script(TorchScriptModel),
+}
+
 /// A loaded detector with its preprocessing, for one sweep at a time.
 pub struct LiveDetector {
-    det: Detector,
+    net: Net,
     prep: Arc<Preprocessor>,
 }
 
@@ -84,37 +92,56 @@ pub struct StageMs {
 impl LiveDetector {
     pub fn load(args: &RunArgs) -> Result<Self> {
         let device = args.device.setup(0)?;
-        let mut ck = pi3det_nn::checkpoint::load(&args.ckpt)?;
-        if let Some(t) = args.score_threshold {
-            ck.config.post.score_threshold = t;
-        }
-        let mut det = Detector::new(&ck.config, device)?;
-        ck.load_into(&mut det, &args.ckpt)?;
-        let mut prep = Preprocessor::new(&ck.config)?;
+        let adjust = |cfg: &mut pi3det_nn::DetectorConfig| {
+            if let Some(t) = args.score_threshold {
+                cfg.post.score_threshold = t;
+            }
+        };
+        let net = if args.ckpt.extension().is_some_and(|e| e == "pt") {
+            Net::Script(TorchScriptModel::load(&args.ckpt, device, adjust)?)
+        } else {
+            let mut ck = pi3det_nn::checkpoint::load(&args.ckpt)?;
+            adjust(&mut ck.config);
+            let mut det = Detector::new(&ck.config, device)?;
+            ck.load_into(&mut det, &args.ckpt)?;
+            Net::Native(det)
+        };
+        let cfg = match &net {
+            Net::Native(d) => d.cfg().clone(),
+            Net::Script(m) => m.det.cfg().clone(),
+        };
+        let mut prep = Preprocessor::new(&cfg)?;
         if let Some(h) = args.vpp_height {
-            prep = prep.with_frame_transform(pi3det_nn::cli::detect::vpp(&ck.config, h)?);
+            prep = prep.with_frame_transform(pi3det_nn::cli::detect::vpp(&cfg, h)?);
         }
-        Ok(Self { det, prep: Arc::new(prep) })
+        Ok(Self { net, prep: Arc::new(prep) })
     }
 
     pub fn detector(&self) -> &Detector {
-        &self.det
+        match &self.net {
+            Net::Native(d) => d,
+            Net::Script(m) => &m.det,
+        }
     }
 
     /// Detections of one sweep, boxes in its LiDAR frame.
     pub fn detect(&self, frame: &Frame) -> Result<(Vec<Object>, StageMs)> {
         let t0 = Instant::now();
         let p = prepare_frame(&self.prep, &[], frame, false, 0)?;
-        let x = self.prep.collate_inputs(&[&p.pillars]).to_device(self.det.device());
+        let det = self.detector();
+        let x = self.prep.collate_inputs(&[&p.pillars]).to_device(det.device());
         let t1 = Instant::now();
         let _guard = tch::no_grad_guard();
-        let y = self.det.forward_t(&x, false)?;
-        if self.det.device().is_cuda() {
+        let y = match &self.net {
+            Net::Native(d) => d.forward_t(&x, false)?,
+            Net::Script(m) => m.forward(&x)?,
+        };
+        if det.device().is_cuda() {
             tch::Cuda::synchronize(0);
         }
         let t2 = Instant::now();
-        let dets = self.det.post_process(&y, 1)?;
-        let objects = dets.first().map(|d| to_objects(&self.det, d, &p.detector_from_lidar)).unwrap_or_default();
+        let dets = det.post_process(&y, 1)?;
+        let objects = dets.first().map(|d| to_objects(det, d, &p.detector_from_lidar)).unwrap_or_default();
         let t3 = Instant::now();
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
         Ok((objects, StageMs { prep: ms(t0, t1), network: ms(t1, t2), post: ms(t2, t3) }))

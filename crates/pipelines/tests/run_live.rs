@@ -157,3 +157,55 @@ fn bag_and_dataset_sources_and_bad_input() {
 fn ckpt_str(dir: &Path) -> String {
     checkpoint(dir).to_str().unwrap().to_string()
 }
+
+#[test]
+fn an_exported_torchscript_model_runs_with_the_same_detections() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let ckpt = ckpt_str(dir);
+    let model = dir.join("m.pt");
+    let export = |extra: &[&str]| {
+        torch()
+            .args(["export", "--ckpt", &ckpt, "--out", model.to_str().unwrap(), "--device", "cpu"])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    ok(&export(&[]), "export");
+    assert!(dir.join("m.json").is_file());
+    let again = export(&[]);
+    assert!(!again.status.success() && String::from_utf8_lossy(&again.stderr).contains("--overwrite"));
+    let onnx = export(&["--format", "onnx", "--overwrite"]);
+    assert!(!onnx.status.success() && String::from_utf8_lossy(&onnx.stderr).contains("ONNX"));
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/pi3det_sample");
+    if !data.exists() {
+        eprintln!("SKIP: {} missing", data.display());
+        return;
+    }
+    let run = |m: &str, out: &Path| {
+        ok(
+            &torch()
+                .args(["run", "--ckpt", m, "--source", data.to_str().unwrap(), "--sink", out.to_str().unwrap()])
+                .args(["--max-frames", "2", "--score-threshold", "0", "--device", "cpu"])
+                .output()
+                .unwrap(),
+            "run",
+        )
+    };
+    let (a, b) = (dir.join("a.jsonl"), dir.join("b.jsonl"));
+    run(&ckpt, &a);
+    run(model.to_str().unwrap(), &b);
+    let strip = |p: &Path| -> Vec<serde_json::Value> {
+        lines(p)
+            .into_iter()
+            .map(|mut l| {
+                l.as_object_mut().unwrap().remove("latency_ms");
+                l
+            })
+            .collect()
+    };
+    let (la, lb) = (strip(&a), strip(&b));
+    assert_eq!(la.len(), 2);
+    assert!(la.iter().any(|l| !l["names"].as_array().unwrap().is_empty()), "nothing detected, nothing compared");
+    assert_eq!(la, lb, "checkpoint and TorchScript model disagree");
+}

@@ -161,6 +161,15 @@ impl DenseHead for AnchorHead {
         self.forward(bev)
     }
 
+    fn output_tensors(out: &AnchorOutput) -> Vec<Tensor> {
+        vec![out.cls.shallow_clone(), out.boxes.shallow_clone(), out.dir.shallow_clone()]
+    }
+
+    fn output_from_tensors(t: Vec<Tensor>) -> Option<AnchorOutput> {
+        let [cls, boxes, dir]: [Tensor; 3] = t.try_into().ok()?;
+        Some(AnchorOutput { cls, boxes, dir })
+    }
+
     fn loss(&self, out: &AnchorOutput, t: &AnchorBatchTargets, losses: &mut LossTerms) {
         let (_, [cls, loc, dir]) = AnchorHead::loss(self, out, t);
         losses.add("cls", cls);

@@ -197,6 +197,15 @@ impl DenseHead for CenterHead {
         CenterHead::forward_t(self, bev, train)
     }
 
+    fn output_tensors(out: &CenterOutput) -> Vec<Tensor> {
+        vec![out.heatmap.shallow_clone(), out.codes.shallow_clone()]
+    }
+
+    fn output_from_tensors(t: Vec<Tensor>) -> Option<CenterOutput> {
+        let [heatmap, codes]: [Tensor; 2] = t.try_into().ok()?;
+        Some(CenterOutput { heatmap, codes })
+    }
+
     fn loss(&self, out: &CenterOutput, t: &CenterBatchTargets, losses: &mut LossTerms) {
         let (_, [hm, loc]) = CenterHead::loss(self, out, t);
         losses.add("hm", hm);

@@ -45,6 +45,10 @@ pub trait DenseHead {
     /// Candidates of frame `frame` of the batch scoring at least `score_threshold`, at most
     /// `pre_max` of them, decoded into boxes.
     fn candidates(&self, out: &Self::Output, frame: i64, score_threshold: f64, pre_max: i64) -> Candidates;
+    /// The outputs as a tensor list (a TorchScript module's results), in a fixed order…
+    fn output_tensors(out: &Self::Output) -> Vec<Tensor>;
+    /// …and back.
+    fn output_from_tensors(t: Vec<Tensor>) -> Option<Self::Output>;
 }
 
 /// Builds a head's training targets from the boxes of a sample (detector frame).
@@ -107,6 +111,8 @@ pub trait AnyDenseHead {
     fn forward_t(&self, bev: &Tensor, train: bool) -> DenseOutput;
     fn loss(&self, out: &DenseOutput, targets: &BatchTargets, losses: &mut LossTerms) -> Result<()>;
     fn candidates(&self, out: &DenseOutput, frame: i64, score_threshold: f64, pre_max: i64) -> Result<Candidates>;
+    fn output_tensors(&self, out: &DenseOutput) -> Result<Vec<Tensor>>;
+    fn output_from_tensors(&self, t: Vec<Tensor>) -> Result<DenseOutput>;
 }
 
 impl<H: DenseHead> AnyDenseHead for H {
@@ -122,6 +128,15 @@ impl<H: DenseHead> AnyDenseHead for H {
     fn candidates(&self, out: &DenseOutput, frame: i64, score_threshold: f64, pre_max: i64) -> Result<Candidates> {
         let out = out.downcast_ref::<H::Output>().ok_or_else(|| mismatch("outputs"))?;
         Ok(DenseHead::candidates(self, out, frame, score_threshold, pre_max))
+    }
+    fn output_tensors(&self, out: &DenseOutput) -> Result<Vec<Tensor>> {
+        Ok(H::output_tensors(out.downcast_ref::<H::Output>().ok_or_else(|| mismatch("outputs"))?))
+    }
+    fn output_from_tensors(&self, t: Vec<Tensor>) -> Result<DenseOutput> {
+        let n = t.len();
+        H::output_from_tensors(t)
+            .map(|o| DenseOutput(Box::new(o)))
+            .ok_or_else(|| NnError::Config(format!("{n} output tensors do not fit this detector's dense head")))
     }
 }
 

@@ -66,7 +66,9 @@ impl BevRoiPoolConfig {
 
     pub fn init(&self) -> Result<BevRoiPool> {
         self.validate()?;
-        Ok(BevRoiPool { cfg: self.clone(), offsets: self.unit_offsets() })
+        let offsets = self.unit_offsets();
+        let offsets_t = Tensor::from_slice(offsets.as_flattened()).view([-1, 2]);
+        Ok(BevRoiPool { cfg: self.clone(), offsets, offsets_t })
     }
 
     /// `[P, 2]` sample offsets in units of the (enlarged) RoI size, in `[−½, ½]`.
@@ -83,10 +85,21 @@ impl BevRoiPoolConfig {
 }
 
 /// The pooling layer (no parameters).
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct BevRoiPool {
     pub cfg: BevRoiPoolConfig,
     offsets: Vec<[f32; 2]>,
+    /// `offsets` as a `[P, 2]` tensor made once. Made from Rust data inside a TorchScript trace
+    /// on every call, the traced module got other values for it (wrong sample points, found by
+    /// crates/nn/tests/export.rs); a tensor living outside the trace is captured as a constant,
+    /// like the weights.
+    offsets_t: Tensor,
+}
+
+impl Clone for BevRoiPool {
+    fn clone(&self) -> Self {
+        Self { cfg: self.cfg.clone(), offsets: self.offsets.clone(), offsets_t: self.offsets_t.shallow_clone() }
+    }
 }
 
 impl BevRoiPool {
@@ -97,8 +110,7 @@ impl BevRoiPool {
     /// Sample points `[..., P, 2]` (x, y in the detector's frame, metres) of `rois [..., 7]`.
     pub fn sample_points(&self, rois: &Tensor) -> Tensor {
         let rois = rois.detach();
-        let off =
-            Tensor::from_slice(self.offsets.as_flattened()).view([-1, 2]).to_device(rois.device()).to_kind(rois.kind());
+        let off = self.offsets_t.to_device(rois.device()).to_kind(rois.kind());
         let m = 2.0 * self.cfg.margin;
         let r = rois.unbind(-1);
         let u = off.select(1, 0) * (&r[3] + m).unsqueeze(-1); // [..., P]

@@ -166,14 +166,21 @@ pub struct ProposalBatch {
 impl ProposalBatch {
     /// Stacks frames' proposals on the CPU; `N = max(1, longest frame)` so that no tensor is empty.
     pub fn collate(frames: &[Proposals]) -> Self {
-        let b = frames.len();
         let n = frames.iter().map(Proposals::len).max().unwrap_or(0).max(1);
+        Self::collate_to(frames, n)
+    }
+
+    /// [`collate`](Self::collate) to exactly `n` rows per frame (a traced second stage has a
+    /// fixed RoI count); frames with more proposals keep their first `n`.
+    pub fn collate_to(frames: &[Proposals], n: usize) -> Self {
+        let b = frames.len();
+        let n = n.max(1);
         let mut rois = vec![0f32; b * n * 7];
         let mut scores = vec![0f32; b * n];
         let mut labels = vec![-1i64; b * n];
         let mut valid = vec![false; b * n];
         for (f, p) in frames.iter().enumerate() {
-            for k in 0..p.len() {
+            for k in 0..p.len().min(n) {
                 let row = f * n + k;
                 for (dst, v) in rois[row * 7..row * 7 + 7].iter_mut().zip(p.boxes[k].to_array()) {
                     *dst = v as f32;

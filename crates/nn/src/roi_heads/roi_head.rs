@@ -220,6 +220,19 @@ pub struct RoiOutput {
     pub rois: Tensor,
 }
 
+impl RoiOutput {
+    /// `[features, iou_logits, box_codes, rois]` (a TorchScript module's results)…
+    pub fn to_tensors(&self) -> Vec<Tensor> {
+        [&self.features, &self.iou_logits, &self.box_codes, &self.rois].iter().map(|t| t.shallow_clone()).collect()
+    }
+
+    /// …and back.
+    pub fn from_tensors(t: Vec<Tensor>) -> Option<Self> {
+        let [features, iou_logits, box_codes, rois]: [Tensor; 4] = t.try_into().ok()?;
+        Some(Self { features, iou_logits, box_codes, rois })
+    }
+}
+
 /// Loss total and its weighted terms (scalars).
 #[derive(Debug)]
 pub struct RoiLosses {

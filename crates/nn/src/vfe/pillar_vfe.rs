@@ -52,17 +52,19 @@ pub struct PillarVfe {
 impl PillarVfe {
     /// `features`: `[P, M, 10]` decorated points (padding rows all zero) → `[P, C]`.
     pub fn forward_t(&self, features: &Tensor, train: bool) -> Tensor {
-        let (p, m, _) = features.size3().expect("pillar features are [P, M, F]");
+        // P stays symbolic (-1, expand_as) so a TorchScript trace runs on any pillar count.
+        let (_, m, _) = features.size3().expect("pillar features are [P, M, F]");
         let mut x = features.shallow_clone();
         for (linear, norm, last) in &self.layers {
             let y = linear.forward(&x); // [P, M, C]
             let c = y.size()[2];
-            let y = norm.forward_t(&y.view([p * m, c]), train).view([p, m, c]).relu();
+            let y = norm.forward_t(&y.view([-1, c]), train).view([-1, m, c]).relu();
             let max = y.amax([1].as_slice(), true); // [P, 1, C]
             if *last {
                 return max.squeeze_dim(1);
             }
-            x = Tensor::cat(&[y, max.expand([p, m, c], false)], 2);
+            let max = max.expand_as(&y);
+            x = Tensor::cat(&[y, max], 2);
         }
         x.amax([1].as_slice(), false)
     }
