@@ -51,7 +51,7 @@ enum Command {
     /// Run a detector on a live or recorded stream (Ouster UDP, ROS 2 bag, dataset) into JSON
     /// lines / Foxglove MCAP, with latency percentiles.
     Run(Forwarded),
-    /// Export a checkpoint's network as TorchScript (model.pt [+ model.roi.pt] + model.toml).
+    /// Export a checkpoint's network as TorchScript (model.pt [+ model.roi.pt] + model.json).
     Export(Forwarded),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
     Demo(Forwarded),

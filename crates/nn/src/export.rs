@@ -14,7 +14,9 @@
 //!   iou_logits, box_codes, rois`) with `N` the config's test-time proposal limit (pad with zero
 //!   rows);
 //! - `model.json`: the format, the output shapes, and the detector config (classes, grid,
-//!   heads, thresholds) the caller needs for the inputs and the decoding.
+//!   heads, thresholds) the caller needs for the inputs and the decoding;
+//! - `model.example.npz`: the traced frame's `features`, `cells` and the first stage's `output`
+//!   (`examples/torchscript/run_exported.py` checks PyTorch against it).
 //!
 //! `pi3det run --ckpt model.pt` runs the exported files through [`TorchScriptModel`].
 
@@ -29,6 +31,12 @@ use crate::{Detector, DetectorConfig};
 /// `model.pt` → `model.roi.pt`.
 pub fn roi_path(model: &Path) -> PathBuf {
     model.with_extension("roi.pt")
+}
+
+/// `model.pt` → `model.example.npz` (the traced frame's inputs and the first stage's output,
+/// for checking a runtime: examples/torchscript/run_exported.py).
+pub fn example_path(model: &Path) -> PathBuf {
+    model.with_extension("example.npz")
 }
 
 /// `model.pt` → `model.json`.
@@ -77,6 +85,7 @@ pub struct ExportedFiles {
     pub dense: PathBuf,
     pub roi: Option<PathBuf>,
     pub config: PathBuf,
+    pub example: PathBuf,
 }
 
 fn tensor(v: IValue, path: &Path) -> Result<Tensor> {
@@ -87,7 +96,7 @@ fn tensor(v: IValue, path: &Path) -> Result<Tensor> {
 }
 
 /// Traces `det` on one frame's `example` inputs and writes the files next to `out`
-/// (`model.pt`, `model.roi.pt`, `model.toml`). The detector's variables stop requiring
+/// (`model.pt`, `model.roi.pt`, `model.json`, `model.example.npz`). The detector's variables stop requiring
 /// gradients (traced weights are constants).
 pub fn export(det: &mut Detector, example: &Inputs, out: &Path) -> Result<ExportedFiles> {
     if example.batch_size != 1 {
@@ -115,7 +124,10 @@ pub fn export(det: &mut Detector, example: &Inputs, out: &Path) -> Result<Export
         vec![flatten(&outputs(&x).unwrap_or_default())]
     })?;
     dense.save(out)?;
-    let mut files = ExportedFiles { dense: out.to_path_buf(), roi: None, config: config_path(out) };
+    let example = example_path(out);
+    let flat = flatten(&example_out);
+    Tensor::write_npz(&[("features", &x.features), ("cells", &x.cells), ("output", &flat)], &example)?;
+    let mut files = ExportedFiles { dense: out.to_path_buf(), roi: None, config: config_path(out), example };
     let mut roi_shapes = None;
     if two_stage {
         // Trace the second stage on the example's own proposals, padded to the fixed count.
@@ -157,7 +169,7 @@ pub struct TorchScriptModel {
 }
 
 impl TorchScriptModel {
-    /// Loads `model.pt` (and `model.roi.pt`, `model.toml` beside it); `adjust` may change the
+    /// Loads `model.pt` (and `model.roi.pt`, `model.json` beside it); `adjust` may change the
     /// config's post-processing (thresholds) first.
     pub fn load(path: &Path, device: Device, adjust: impl FnOnce(&mut DetectorConfig)) -> Result<Self> {
         let cfg_path = config_path(path);

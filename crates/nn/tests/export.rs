@@ -51,9 +51,9 @@ fn check(cfg_name: &str) {
     let prep = det.prep.clone();
     let inputs = |f: &Frame| {
         let p = prepare_frame(&prep, &[], f, false, 0).unwrap();
-        (prep.collate_inputs(&[&p.pillars]), p.detector_from_lidar)
+        prep.collate_inputs(&[&p.pillars])
     };
-    let (x0, _) = inputs(&frame(1, 3000));
+    let x0 = inputs(&frame(1, 3000));
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("m.pt");
     let files = export(&mut det, &x0, &out).unwrap();
@@ -62,7 +62,7 @@ fn check(cfg_name: &str) {
     let _g = tch::no_grad_guard();
     // Another frame, another pillar count than the traced one.
     for f in [frame(2, 5000), frame(3, 800)] {
-        let (x, pose) = inputs(&f);
+        let x = inputs(&f);
         assert_ne!(x.features.size()[0], x0.features.size()[0]);
         let native = det.forward_t(&x, false).unwrap();
         let traced = ts.forward(&x).unwrap();
@@ -104,7 +104,6 @@ fn check(cfg_name: &str) {
                 assert!((pa[k] - qa[k]).abs() < 1e-3, "{cfg_name}: {p:?} vs {q:?}");
             }
         }
-        let _ = pose;
     }
 }
 

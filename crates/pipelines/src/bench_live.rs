@@ -93,6 +93,12 @@ fn one(args: &BenchLiveArgs, vpp: bool, dir: &std::path::Path) -> Result<RunSumm
         device: args.device.clone(),
     };
     let detector = LiveDetector::load(&run_args)?;
+    // The first passes allocate libtorch's buffers and build oneDNN's kernels: not latency a
+    // running robot sees.
+    let warm = crate::frames::vehicle_frames(1)?;
+    for _ in 0..5 {
+        detector.detect(&warm[0])?;
+    }
     let (source, sender): (Box<dyn Source>, Option<std::thread::JoinHandle<()>>) = match &args.data {
         Some(d) => {
             let s = open_subset(d, None, None, 0)?;
@@ -134,13 +140,13 @@ pub fn run(args: &BenchLiveArgs) -> Result<()> {
         None => format!("OS1-64 1024 packets over UDP loopback at {} Hz", args.rate),
     };
     println!("pi3det run on {input}, {:.0} s per row, queue {}", args.seconds, args.queue);
-    println!("| VPP | sweeps in | processed | dropped | p50 ms | p95 ms | p99 ms | max ms | mean: wait / pillars / network / NMS ms | RSS start → end MB |");
+    println!("| VPP | sweeps in | processed | dropped | p50 ms | p95 ms | p99 ms | max ms | mean: wait / pillars / network / NMS ms | RSS start → each minute → end MB |");
     println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- | --- |");
     for &vpp in modes {
         let s = one(args, vpp, dir.path())?;
         let mb = |kb: Option<u64>| kb.map_or("?".into(), |k| format!("{:.0}", k as f64 / 1024.0));
         println!(
-            "| {} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} / {:.1} / {:.1} / {:.1} | {} → {} |",
+            "| {} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} / {:.1} / {:.1} / {:.1} | {} |",
             if vpp { format!("on ({} m)", args.vpp_height) } else { "off".into() },
             s.source.sweeps,
             s.processed,
@@ -153,8 +159,11 @@ pub fn run(args: &BenchLiveArgs) -> Result<()> {
             s.prep.mean_ms(),
             s.network.mean_ms(),
             s.post.mean_ms(),
-            mb(s.rss_start_kb),
-            mb(s.rss_end_kb)
+            std::iter::once(mb(s.rss_start_kb))
+                .chain(s.rss_samples_kb.iter().map(|(_, kb)| mb(Some(*kb))))
+                .chain(std::iter::once(mb(s.rss_end_kb)))
+                .collect::<Vec<_>>()
+                .join(" → ")
         );
     }
     Ok(())

@@ -8,9 +8,9 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use pi3det_nn::cli::args::{open_subset, DeviceArgs};
 use pi3det_nn::data_loader::prepare_frame;
-use pi3det_nn::export::{config_path, export, roi_path};
+use pi3det_nn::export::{config_path, example_path, export, roi_path};
 
-/// Export a checkpoint's network as TorchScript (model.pt [+ model.roi.pt] + model.toml).
+/// Export a checkpoint's network as TorchScript (model.pt [+ model.roi.pt] + model.json).
 #[derive(clap::Args, Debug, Clone)]
 pub struct ExportArgs {
     /// Checkpoint (.safetensors) of `pi3det train` or `pi3det adapt`.
@@ -19,7 +19,8 @@ pub struct ExportArgs {
     /// Only `torchscript`: ONNX needs an exporter that is not part of libtorch's C++ API.
     #[arg(long, default_value = "torchscript")]
     pub format: String,
-    /// The model file (`.pt`); the config (`.toml`) and a two-stage model's second stage
+    /// The model file (`.pt`); its description (`.json`: config, output shapes), the traced
+    /// frame's inputs and output (`.example.npz`) and a two-stage model's second stage
     /// (`.roi.pt`) go beside it.
     #[arg(long)]
     pub out: PathBuf,
@@ -45,7 +46,7 @@ pub fn run(args: &ExportArgs) -> Result<()> {
     if args.out.extension().is_none_or(|e| e != "pt") {
         bail!("--out {}: the model file must end in .pt", args.out.display());
     }
-    let files = [args.out.clone(), roi_path(&args.out), config_path(&args.out)];
+    let files = [args.out.clone(), roi_path(&args.out), config_path(&args.out), example_path(&args.out)];
     if !args.overwrite {
         if let Some(f) = files.iter().find(|f| f.exists()) {
             bail!("{} exists; pass --overwrite to replace it", f.display());
@@ -74,5 +75,6 @@ pub fn run(args: &ExportArgs) -> Result<()> {
         println!("{}", r.display());
     }
     println!("{}", written.config.display());
+    println!("{}", written.example.display());
     Ok(())
 }

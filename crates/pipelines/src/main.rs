@@ -34,7 +34,7 @@ enum Command {
     /// Run a detector on a live or recorded stream (Ouster UDP, ROS 2 bag, dataset) into JSON
     /// lines / Foxglove MCAP, with latency percentiles.
     Run(pi3det_pipelines::run::RunArgs),
-    /// Export a checkpoint's network as TorchScript (model.pt [+ model.roi.pt] + model.toml).
+    /// Export a checkpoint's network as TorchScript (model.pt [+ model.roi.pt] + model.json).
     Export(pi3det_pipelines::export::ExportArgs),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
     Demo(pi3det_pipelines::demo::DemoArgs),

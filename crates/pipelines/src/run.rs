@@ -34,7 +34,7 @@ use pi3det_nn::Detector;
 #[derive(clap::Args, Debug, Clone)]
 pub struct RunArgs {
     /// Checkpoint (.safetensors) of `pi3det train` or `pi3det adapt`, or a model exported by
-    /// `pi3det export` (.pt, with its .toml and .roi.pt beside it).
+    /// `pi3det export` (.pt, with its .json and .roi.pt beside it).
     #[arg(long)]
     pub ckpt: PathBuf,
     /// `ouster-udp://HOST:PORT?metadata=FILE`, `mcap://BAG.mcap?topic=/points[&rate=HZ]`,
@@ -163,6 +163,8 @@ pub struct RunSummary {
     pub wall_s: f64,
     pub rss_start_kb: Option<u64>,
     pub rss_end_kb: Option<u64>,
+    /// Resident memory once a minute: (seconds since the start, kB).
+    pub rss_samples_kb: Vec<(f64, u64)>,
 }
 
 impl RunSummary {
@@ -172,6 +174,7 @@ impl RunSummary {
             "detections": self.detections, "latency_ms": self.total.to_json(), "queue_ms": self.queue.to_json(), "prep_ms": self.prep.to_json(),
             "network_ms": self.network.to_json(), "post_ms": self.post.to_json(),
             "wall_s": self.wall_s, "rss_start_kb": self.rss_start_kb, "rss_end_kb": self.rss_end_kb,
+            "rss_samples_kb": self.rss_samples_kb,
         })
     }
 }
@@ -249,6 +252,7 @@ pub fn stream(
         wall_s: 0.0,
         rss_start_kb: rss_kb(),
         rss_end_kb: None,
+        rss_samples_kb: Vec::new(),
     };
     let mut last_progress = Instant::now();
     let result = (|| -> Result<()> {
@@ -267,6 +271,12 @@ pub fn stream(
             s.prep.record(ms.prep);
             s.network.record(ms.network);
             s.post.record(ms.post);
+            let t = start.elapsed().as_secs_f64();
+            if t >= 60.0 * (s.rss_samples_kb.len() + 1) as f64 {
+                if let Some(kb) = rss_kb() {
+                    s.rss_samples_kb.push((t, kb));
+                }
+            }
             if last_progress.elapsed() >= Duration::from_secs(1) {
                 s.dropped_in_queue = queue.dropped();
                 s.wall_s = start.elapsed().as_secs_f64();

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use pi3det_live::replay::{self, Faults, ReplayPlan};
+use pi3det_live::source::mcap_bag::write_bag;
 use pi3det_live::source::pointcloud2::from_xyzi;
 use pi3det_nn::checkpoint::{self, TrainState};
 use pi3det_sequence::synth::{metadata_json, SynthSpec};
@@ -103,24 +104,14 @@ fn bag_and_dataset_sources_and_bad_input() {
     let ckpt = ckpt_str(dir);
     // A ROS 2 bag of three clouds (written with our CDR encoder and the mcap crate).
     let bag = dir.join("b.mcap");
-    {
-        let mut w = mcap::Writer::new(std::io::BufWriter::new(std::fs::File::create(&bag).unwrap())).unwrap();
-        let s = w.add_schema("sensor_msgs/msg/PointCloud2", "ros2msg", b"").unwrap();
-        let c = w.add_channel(s, "/points", "cdr", &Default::default()).unwrap();
-        for k in 0..3u64 {
+    let clouds: Vec<_> = (0..3u64)
+        .map(|k| {
             let pts: Vec<[f32; 4]> =
                 (0..500).map(|i| [5.0 + (i % 50) as f32 * 0.5, -10.0 + (i / 50) as f32, -1.5, 0.3]).collect();
-            let msg = from_xyzi(&pts, (k + 1) * 100_000_000, "lidar");
-            let h = mcap::records::MessageHeader {
-                channel_id: c,
-                sequence: k as u32,
-                log_time: msg.stamp_ns,
-                publish_time: msg.stamp_ns,
-            };
-            w.write_to_known_channel(&h, &msg.encode()).unwrap();
-        }
-        w.finish().unwrap();
-    }
+            from_xyzi(&pts, (k + 1) * 100_000_000, "lidar")
+        })
+        .collect();
+    write_bag(&bag, "/points", &clouds).unwrap();
     let jsonl = dir.join("bag.jsonl");
     let run = |source: &str, sink: &Path, extra: &[&str]| {
         torch()
@@ -208,4 +199,31 @@ fn an_exported_torchscript_model_runs_with_the_same_detections() {
     assert_eq!(la.len(), 2);
     assert!(la.iter().any(|l| !l["names"].as_array().unwrap().is_empty()), "nothing detected, nothing compared");
     assert_eq!(la, lb, "checkpoint and TorchScript model disagree");
+}
+
+#[test]
+fn pytorch_runs_the_exported_model_with_rusts_output() {
+    let py = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
+    let has_torch = Command::new(&py).args(["-c", "import torch, numpy"]).output().is_ok_and(|o| o.status.success());
+    if !has_torch {
+        eprintln!(
+            "SKIP: {} cannot import torch (scripts/setup-torch --python installs its dependencies)",
+            py.display()
+        );
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let ckpt = ckpt_str(tmp.path());
+    let model = tmp.path().join("m.pt");
+    ok(
+        &torch()
+            .args(["export", "--ckpt", &ckpt, "--out", model.to_str().unwrap(), "--device", "cpu"])
+            .output()
+            .unwrap(),
+        "export",
+    );
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/torchscript/run_exported.py");
+    let out = Command::new(&py).arg(script).arg(&model).output().unwrap();
+    let stdout = ok(&out, "run_exported.py");
+    assert!(stdout.contains("max |python - rust|"), "{stdout}");
 }

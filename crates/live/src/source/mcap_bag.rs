@@ -47,6 +47,27 @@ pub fn channels(path: &Path, map: &[u8]) -> Result<Vec<(String, String, String)>
     Ok(out)
 }
 
+/// Writes `clouds` as a ROS 2 bag (MCAP, CDR) on `topic`, stamped with their own times: test
+/// data and replays for `pi3det run`.
+pub fn write_bag(path: &Path, topic: &str, clouds: &[PointCloud2]) -> Result<()> {
+    let err = |e: mcap::McapError| LiveError::invalid(path, format!("MCAP: {e}"));
+    let file = std::fs::File::create(path).map_err(|e| LiveError::io(path, e))?;
+    let mut w = mcap::Writer::new(std::io::BufWriter::new(file)).map_err(err)?;
+    let schema = w.add_schema(POINTCLOUD2, "ros2msg", b"").map_err(err)?;
+    let channel_id = w.add_channel(schema, topic, "cdr", &Default::default()).map_err(err)?;
+    for (k, m) in clouds.iter().enumerate() {
+        let h = mcap::records::MessageHeader {
+            channel_id,
+            sequence: k as u32,
+            log_time: m.stamp_ns,
+            publish_time: m.stamp_ns,
+        };
+        w.write_to_known_channel(&h, &m.encode()).map_err(err)?;
+    }
+    w.finish().map_err(err)?;
+    Ok(())
+}
+
 impl McapSource {
     /// Opens `path` and checks the topic: it must exist and carry `PointCloud2` in CDR. Without
     /// `topic`, the file's only `PointCloud2` topic is taken.
