@@ -55,7 +55,7 @@ fn udp_stream_gives_one_line_per_completed_sweep() {
     let port = UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
     let source = format!("ouster-udp://127.0.0.1:{port}?metadata={}&timeout_s=2", md.display());
     let (jsonl, mcap, report) = (dir.join("det.jsonl"), dir.join("det.mcap"), dir.join("report.json"));
-    let child = torch()
+    let mut child = torch()
         .args(["run", "--ckpt", ckpt.to_str().unwrap(), "--source", &source, "--queue", "64", "--device", "cpu"])
         .args([
             "--sink",
@@ -69,12 +69,30 @@ fn udp_stream_gives_one_line_per_completed_sweep() {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    std::thread::sleep(std::time::Duration::from_millis(1500));
+    // Send once the command listens: it prints "run: SOURCE → SINKS" after binding the port.
+    let stderr = child.stderr.take().unwrap();
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+    let reader = std::thread::spawn(move || {
+        let mut all = String::new();
+        for line in std::io::BufRead::lines(std::io::BufReader::new(stderr)).map_while(Result::ok) {
+            if line.starts_with("run: ") {
+                let _ = ready_tx.send(());
+            }
+            all.push_str(&line);
+            all.push('\n');
+        }
+        all
+    });
+    let listening = ready_rx.recv_timeout(std::time::Duration::from_secs(120)).is_ok();
     let faults = Faults { loss: 0.03, reorder: 0.05, duplicate: 0.05, truncate: 0.0, garbage: 0.05 };
     let plan = ReplayPlan { sweeps: 6, first_frame_id: 65533, restart_at: None, faults, seed: 5 };
-    replay::send(&replay::datagrams(&spec(), &plan), format!("127.0.0.1:{port}").parse().unwrap(), 5.0).unwrap();
+    if listening {
+        replay::send(&replay::datagrams(&spec(), &plan), format!("127.0.0.1:{port}").parse().unwrap(), 5.0).unwrap();
+    }
     let out = child.wait_with_output().unwrap();
-    let stdout = ok(&out, "run");
+    let stderr = reader.join().unwrap();
+    assert!(listening && out.status.success(), "run failed:\n{}\n{stderr}", String::from_utf8_lossy(&out.stdout));
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
     let sweeps = r["source"]["sweeps"].as_u64().unwrap();
     assert!((5..=6).contains(&sweeps), "{stdout}");

@@ -215,6 +215,26 @@ impl Assembler {
     }
 }
 
+/// Receive buffer asked for (the kernel caps it at `net.core.rmem_max`; Ouster recommends raising
+/// that on the host): about ten OS1-64 sweeps.
+const RECV_BUFFER_BYTES: usize = 8 << 20;
+
+fn bind(addr: SocketAddr) -> std::io::Result<UdpSocket> {
+    use socket2::{Domain, Protocol, Socket, Type};
+    let s = Socket::new(Domain::for_address(addr), Type::DGRAM, Some(Protocol::UDP))?;
+    if let Err(e) = s.set_recv_buffer_size(RECV_BUFFER_BYTES) {
+        tracing::warn!("ouster-udp://{addr}: cannot enlarge the receive buffer ({e}); bursts may lose packets");
+    }
+    match s.recv_buffer_size() {
+        Ok(n) if n < 1 << 20 => tracing::warn!(
+            "ouster-udp://{addr}: receive buffer {n} bytes (capped by net.core.rmem_max): a stall of the receiving thread may lose packets"
+        ),
+        _ => {}
+    }
+    s.bind(&addr.into())?;
+    Ok(s.into())
+}
+
 /// Listens on a UDP port; sweeps are decoded on this thread as they complete.
 pub struct UdpSource {
     options: UdpOptions,
@@ -227,7 +247,7 @@ pub struct UdpSource {
 impl UdpSource {
     pub fn open(options: &UdpOptions) -> Result<Self> {
         let md = read_metadata(&options.metadata)?;
-        let socket = UdpSocket::bind(options.addr)
+        let socket = bind(options.addr)
             .map_err(|e| LiveError::uri(format!("ouster-udp://{}", options.addr), format!("cannot listen: {e}")))?;
         Ok(Self {
             assembler: Assembler::new(&md, options.min_coverage),
