@@ -5,7 +5,9 @@
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
-use pi3det_sequence::synth::{sweep_packets, SynthSpec};
+use pi3det_data::PointCloud;
+use pi3det_sequence::ouster::{PacketFormat, UdpProfile, XyzLut};
+use pi3det_sequence::synth::{sweep_packets, sweep_packets_with, SynthSpec};
 
 /// Probabilities per packet.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -127,4 +129,46 @@ pub fn send(sweeps: &[Vec<Vec<u8>>], to: SocketAddr, rate_hz: f64) -> std::io::R
         }
     }
     Ok(sent)
+}
+
+/// A point cloud (sensor frame; x, y, z and intensity in [0, 1] if it has one) as one sweep's
+/// packets of `spec`: each point goes to the pixel whose return it is nearest
+/// ([`XyzLut::pixel_of`]); where two share a pixel the nearer one stays, points no beam sees
+/// (over 0.5° from every beam) are left out. Returns the packets and the points encoded.
+pub fn encode_cloud(spec: &SynthSpec, lut: &XyzLut, cloud: &PointCloud, frame_id: u16, t0_ns: u64) -> (Vec<u8>, usize) {
+    let (h, w) = (spec.beams, spec.columns);
+    let mut grid = vec![(0u32, 0u16); h * w];
+    let has_intensity = cloud.stride() >= 4;
+    for p in cloud.iter() {
+        let xyz = [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])];
+        if let Some((u, v, r)) = lut.pixel_of(xyz, 0.5) {
+            let cell = &mut grid[u * w + v];
+            if cell.0 == 0 || r < cell.0 {
+                let refl = if has_intensity { (p[3].clamp(0.0, 1.0) * 255.0).round() as u16 } else { 0 };
+                *cell = (r, refl);
+            }
+        }
+    }
+    let encoded = grid.iter().filter(|c| c.0 > 0).count();
+    (sweep_packets_with(spec, usize::from(frame_id), t0_ns, &mut |u, m| grid[u * w + m]), encoded)
+}
+
+/// Rewrites the frame id and timestamps of one sweep's packets (to send a recorded sweep
+/// again as a later one).
+pub fn relabel(format: &PacketFormat, packets: &mut [u8], frame_id: u16, t0_ns: u64) {
+    let col = format.column_bytes();
+    let w = format.columns_per_frame.max(1) as u64;
+    for packet in packets.chunks_exact_mut(format.packet_bytes()) {
+        if format.profile == UdpProfile::Rng19Rfl8Sig16Nir16 {
+            packet[2..4].copy_from_slice(&frame_id.to_le_bytes());
+        }
+        let body = format.packet_header_bytes..packet.len() - format.packet_footer_bytes;
+        for c in packet[body].chunks_exact_mut(col) {
+            let m = u64::from(u16::from_le_bytes([c[8], c[9]]));
+            c[..8].copy_from_slice(&(t0_ns + m * (100_000_000 / w)).to_le_bytes());
+            if format.profile == UdpProfile::Legacy {
+                c[10..12].copy_from_slice(&frame_id.to_le_bytes());
+            }
+        }
+    }
 }

@@ -3,19 +3,20 @@
 //! 10 Hz, and the detector runs on every sweep it can take — with and without Virtual Platform
 //! Pose. Prints latency percentiles (sweep complete → detections), drops and memory.
 //!
-//! `pi3det bench live --ckpt runs/demo_net/pointpillars_vehicle/final.safetensors [--data runs/demo/seed_0/data/quadruped/val] [--seconds 600]`
+//! `pi3det bench live --ckpt runs/demo_net/pointpillars_vehicle/final.safetensors [--data runs/demo/seed_0/data/quadruped/val [--udp]] [--seconds 600]`
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use pi3det_live::replay::{self, Faults, ReplayPlan};
 use pi3det_live::source::dataset::DatasetSource;
 use pi3det_live::source::ouster_udp::{UdpOptions, UdpSource};
 use pi3det_live::Source;
 use pi3det_nn::cli::args::{open_subset, DeviceArgs};
+use pi3det_sequence::ouster::{PacketFormat, SensorMetadata, XyzLut};
 use pi3det_sequence::synth::{metadata_json, SynthSpec};
 
 use crate::run::{stream, LiveDetector, RunArgs, RunSummary};
@@ -28,6 +29,10 @@ pub struct BenchLiveArgs {
     /// Stream this dataset's frames at `--rate` instead of synthetic Ouster packets over UDP.
     #[arg(long)]
     pub data: Option<PathBuf>,
+    /// With `--data`: send its frames as OS1-64 packets over UDP (each point encoded into the
+    /// pixel whose return it is nearest), so the whole live path runs on real scenes.
+    #[arg(long, requires = "data")]
+    pub udp: bool,
     /// Seconds per configuration.
     #[arg(long, default_value_t = 30.0)]
     pub seconds: f64,
@@ -46,6 +51,30 @@ pub struct BenchLiveArgs {
     pub device: DeviceArgs,
 }
 
+/// Up to 30 frames of `data` encoded as OS1-64 sweeps (packets concatenated).
+fn encoded_frames(data: &std::path::Path, spec: &SynthSpec, md: &SensorMetadata) -> Result<Vec<Vec<u8>>> {
+    let s = open_subset(data, None, None, 30)?;
+    let lut = XyzLut::new(md);
+    let mut out = Vec::new();
+    let (mut kept, mut total) = (0usize, 0usize);
+    for &i in &s.indices {
+        let f = s.dataset.load(i)?;
+        let (packets, n) = replay::encode_cloud(spec, &lut, &f.points, 0, 0);
+        kept += n;
+        total += f.points.len();
+        out.push(packets);
+    }
+    if out.is_empty() {
+        bail!("{}: no frames", data.display());
+    }
+    eprintln!(
+        "encoded {} frames of {} as OS1-64 packets: {kept} of {total} points on a pixel",
+        out.len(),
+        data.display()
+    );
+    Ok(out)
+}
+
 fn udp_source(dir: &std::path::Path, args: &BenchLiveArgs) -> Result<(Box<dyn Source>, std::thread::JoinHandle<()>)> {
     let spec = SynthSpec::os1_64("bench", 1);
     let md = dir.join("os1_64.json");
@@ -58,6 +87,30 @@ fn udp_source(dir: &std::path::Path, args: &BenchLiveArgs) -> Result<(Box<dyn So
     // One second of distinct sweeps, sent over and over with running frame ids.
     let one_s = args.rate.ceil() as usize;
     let rate = args.rate;
+    if args.udp {
+        let data = args.data.clone().context("--udp needs --data")?;
+        let md = SensorMetadata::parse(&o.metadata, &metadata_json(&spec))?;
+        let recorded = encoded_frames(&data, &spec, &md)?;
+        let format = PacketFormat::new(&md);
+        let sender = std::thread::spawn(move || {
+            let mut sent = 0;
+            while sent < sweeps {
+                let n = one_s.min(sweeps - sent);
+                let batch: Vec<Vec<Vec<u8>>> = (sent..sent + n)
+                    .map(|k| {
+                        let mut p = recorded[k % recorded.len()].clone();
+                        replay::relabel(&format, &mut p, k as u16, 1_000_000_000 + k as u64 * 100_000_000);
+                        p.chunks(format.packet_bytes()).map(<[u8]>::to_vec).collect()
+                    })
+                    .collect();
+                if replay::send(&batch, addr, rate).is_err() {
+                    return;
+                }
+                sent += n;
+            }
+        });
+        return Ok((Box::new(src), sender));
+    }
     let sender = std::thread::spawn(move || {
         let mut sent = 0;
         while sent < sweeps {
@@ -100,13 +153,13 @@ fn one(args: &BenchLiveArgs, vpp: bool, dir: &std::path::Path) -> Result<RunSumm
         detector.detect(&warm[0])?;
     }
     let (source, sender): (Box<dyn Source>, Option<std::thread::JoinHandle<()>>) = match &args.data {
-        Some(d) => {
+        Some(d) if !args.udp => {
             let s = open_subset(d, None, None, 0)?;
             let n = ((args.seconds * args.rate).ceil() as usize).max(1);
             let indices: Vec<usize> = (0..n).map(|k| s.indices[k % s.indices.len().max(1)]).collect();
             (Box::new(DatasetSource::new(s.dataset, indices, Some(args.rate), d.display().to_string())), None)
         }
-        None => {
+        _ => {
             let (s, h) = udp_source(dir, args)?;
             (s, Some(h))
         }
@@ -136,8 +189,9 @@ pub fn run(args: &BenchLiveArgs) -> Result<()> {
         _ => &[false, true],
     };
     let input = match &args.data {
+        Some(d) if args.udp => format!("{} as OS1-64 1024 packets over UDP loopback at {} Hz", d.display(), args.rate),
         Some(d) => format!("{} at {} Hz", d.display(), args.rate),
-        None => format!("OS1-64 1024 packets over UDP loopback at {} Hz", args.rate),
+        None => format!("synthetic OS1-64 1024 packets (random ranges) over UDP loopback at {} Hz", args.rate),
     };
     println!("pi3det run on {input}, {:.0} s per row, queue {}", args.seconds, args.queue);
     println!("| VPP | sweeps in | processed | dropped | p50 ms | p95 ms | p99 ms | max ms | mean: wait / pillars / network / NMS ms | RSS start → each minute → end MB |");

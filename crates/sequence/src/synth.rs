@@ -84,8 +84,23 @@ pub fn metadata_json(spec: &SynthSpec) -> String {
     .to_string()
 }
 
-/// One sweep's packets, concatenated.
+/// One sweep's packets, concatenated: random returns (10 % empty, 0.3–80 m).
 pub fn sweep_packets(spec: &SynthSpec, frame: usize, t0_ns: u64, rng: &mut impl FnMut() -> u64) -> Vec<u8> {
+    sweep_packets_with(spec, frame, t0_ns, &mut |_, _| {
+        let r = rng();
+        let range = if r.is_multiple_of(10) { 0 } else { 300 + (r >> 8) % 80_000 } as u32;
+        (range, ((r >> 40) % 256) as u16)
+    })
+}
+
+/// One sweep's packets, concatenated, with `pixel(beam, measurement_id)` giving each pixel's
+/// (range mm, reflectivity), in the spec's profile.
+pub fn sweep_packets_with(
+    spec: &SynthSpec,
+    frame: usize,
+    t0_ns: u64,
+    pixel: &mut impl FnMut(usize, usize) -> (u32, u16),
+) -> Vec<u8> {
     let (h, w) = (spec.beams, spec.columns);
     let mut out = Vec::new();
     for p in 0..w.div_ceil(16) {
@@ -106,13 +121,12 @@ pub fn sweep_packets(spec: &SynthSpec, frame: usize, t0_ns: u64, rng: &mut impl 
                 }
                 UdpProfile::Rng19Rfl8Sig16Nir16 => out.extend_from_slice(&1u16.to_le_bytes()),
             }
-            for _ in 0..h {
-                let r = rng();
-                let range = if r.is_multiple_of(10) { 0 } else { 300 + (r >> 8) % 80_000 } as u32;
+            for u in 0..h {
+                let (range, refl) = pixel(u, usize::from(m));
                 out.extend_from_slice(&range.to_le_bytes());
                 match spec.profile {
-                    UdpProfile::Legacy => out.extend_from_slice(&(((r >> 40) % 256) as u16).to_le_bytes()),
-                    UdpProfile::Rng19Rfl8Sig16Nir16 => out.extend_from_slice(&[((r >> 40) % 256) as u8, 0]),
+                    UdpProfile::Legacy => out.extend_from_slice(&refl.to_le_bytes()),
+                    UdpProfile::Rng19Rfl8Sig16Nir16 => out.extend_from_slice(&[refl.min(255) as u8, 0]),
                 }
                 out.extend_from_slice(&[0; 6]);
             }

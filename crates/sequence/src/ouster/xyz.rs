@@ -105,4 +105,64 @@ impl XyzLut {
             }
         }
     }
+
+    /// The staggered pixel `(beam, measurement id)` and range (mm) whose return is nearest to
+    /// `p` (sensor frame, m): [`xyz`](Self::xyz) inverted, to encode points as packets (replays,
+    /// benchmarks). The beam is the one nearest in elevation; `None` when `p` is more than
+    /// `max_elevation_gap_deg` from every beam, at the origin, or beyond the 20-bit range.
+    pub fn pixel_of(&self, p: [f64; 3], max_elevation_gap_deg: f64) -> Option<(usize, usize, u32)> {
+        let (w, h) = (self.w, self.h);
+        if w == 0 || h == 0 {
+            return None;
+        }
+        let elevation = |d: [f64; 3]| d[2].atan2(d[0].hypot(d[1]));
+        let azimuth = |d: [f64; 3]| d[1].atan2(d[0]);
+        let step = std::f64::consts::TAU / w as f64;
+        let locate = |q: [f64; 3], max_gap_deg: f64| -> Option<(usize, usize)> {
+            let e = elevation(q);
+            let (u, gap) =
+                (0..h).map(|u| (u, (elevation(self.direction[u * w]) - e).abs())).min_by(|a, b| a.1.total_cmp(&b.1))?;
+            if gap.to_degrees() > max_gap_deg {
+                return None;
+            }
+            // Column azimuths fall by one step per measurement id from column 0's.
+            let turn = (azimuth(self.direction[u * w]) - azimuth(q)).rem_euclid(std::f64::consts::TAU);
+            Some((u, ((turn / step).round() as usize) % w))
+        };
+        // The beam origin sits off the axis: locate, subtract that pixel's offset, locate again.
+        // (The gap is checked on the corrected point: up close the offset moves it by degrees.)
+        let (mut u, mut v) = locate(p, 180.0)?;
+        for k in 0..3 {
+            let o = self.offset[u * w + v];
+            let gap = if k == 2 { max_elevation_gap_deg } else { 180.0 };
+            (u, v) = locate([p[0] - o[0], p[1] - o[1], p[2] - o[2]], gap)?;
+        }
+        let o = self.offset[u * w + v];
+        let d = self.direction[u * w + v];
+        let along: f64 = (0..3).map(|c| (p[c] - o[c]) * d[c]).sum::<f64>() / (0..3).map(|c| d[c] * d[c]).sum::<f64>();
+        let range = along.round();
+        (range >= 1.0 && range <= f64::from(0x000f_ffff)).then_some((u, v, range as u32))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::{metadata_json, SynthSpec};
+    use std::path::Path;
+
+    #[test]
+    fn pixel_of_inverts_xyz() {
+        let md = SensorMetadata::parse(Path::new("m.json"), &metadata_json(&SynthSpec::os1_64("t", 1))).unwrap();
+        let lut = XyzLut::new(&md);
+        let mut seed = 7u64;
+        for _ in 0..5000 {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let (u, v) = ((seed >> 33) as usize % lut.h, (seed >> 13) as usize % lut.w);
+            let r = 1000 + (seed >> 40) as u32 % 100_000;
+            let p = lut.xyz(u, v, r);
+            assert_eq!(lut.pixel_of(p, 0.5), Some((u, v, r)), "pixel ({u}, {v}) at {r} mm");
+        }
+        assert_eq!(lut.pixel_of([0.0, 0.0, 50.0], 0.5), None, "straight up: no beam");
+    }
 }
