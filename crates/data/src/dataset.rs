@@ -4,7 +4,7 @@ use std::path::Path;
 
 use crate::error::DataError;
 use crate::frame::{Frame, FrameInfo};
-use crate::points::read_bin;
+use crate::points::{read_bin, PointCloud};
 
 /// The on-disk formats pi3det reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -37,6 +37,42 @@ pub trait Dataset: Send + Sync {
         let channels: Vec<&str> = info.point_channels.iter().map(String::as_str).collect();
         let points = read_bin(&info.points_path, &channels)?.cloud;
         Ok(Frame { info, points })
+    }
+}
+
+/// How [`Mapped`] changes each frame of the dataset it wraps.
+pub trait FrameMap: Send + Sync {
+    /// The info of frame `index` (also the loaded frame's).
+    fn info(&self, index: usize, info: FrameInfo) -> FrameInfo;
+    /// The loaded frame's points (default: unchanged).
+    fn points(&self, _index: usize, points: PointCloud) -> Result<PointCloud, DataError> {
+        Ok(points)
+    }
+}
+
+/// A dataset seen through a [`FrameMap`] (relabelled, moved): `info` and `load` both go through
+/// the map, and `load` reads the points through the inner dataset (whatever its storage).
+pub struct Mapped<M> {
+    pub inner: std::sync::Arc<dyn Dataset>,
+    pub map: M,
+}
+
+impl<M: FrameMap> Dataset for Mapped<M> {
+    fn format(&self) -> Format {
+        self.inner.format()
+    }
+    fn root(&self) -> &Path {
+        self.inner.root()
+    }
+    fn len(&self) -> usize {
+        self.inner.len()
+    }
+    fn info(&self, index: usize) -> Result<FrameInfo, DataError> {
+        Ok(self.map.info(index, self.inner.info(index)?))
+    }
+    fn load(&self, index: usize) -> Result<Frame, DataError> {
+        let f = self.inner.load(index)?;
+        Ok(Frame { info: self.map.info(index, f.info), points: self.map.points(index, f.points)? })
     }
 }
 
@@ -112,5 +148,50 @@ mod tests {
         std::fs::write(dir.path().join("car_x_data.h5"), b"").unwrap();
         let e = super::open(dir.path()).err().unwrap().to_string();
         assert!(e.contains("pi3det convert"), "{e}");
+    }
+}
+
+#[cfg(test)]
+mod mapped_tests {
+    use super::*;
+    use std::path::PathBuf;
+
+    /// Frames held in memory: `load` never touches a file.
+    struct InMemory(PathBuf);
+
+    impl Dataset for InMemory {
+        fn format(&self) -> Format {
+            Format::Pi3det
+        }
+        fn root(&self) -> &Path {
+            &self.0
+        }
+        fn len(&self) -> usize {
+            2
+        }
+        fn info(&self, index: usize) -> Result<FrameInfo, DataError> {
+            Ok(FrameInfo::new(format!("{index}"), self.0.join("missing.bin")))
+        }
+        fn load(&self, index: usize) -> Result<Frame, DataError> {
+            Ok(Frame { info: self.info(index)?, points: PointCloud::from_xyzi(&[[index as f32, 0.0, 0.0, 1.0]]) })
+        }
+    }
+
+    struct Rename;
+
+    impl FrameMap for Rename {
+        fn info(&self, index: usize, mut info: FrameInfo) -> FrameInfo {
+            info.id = format!("mapped-{index}");
+            info
+        }
+    }
+
+    #[test]
+    fn load_goes_through_the_inner_dataset_and_the_map() {
+        let m = Mapped { inner: std::sync::Arc::new(InMemory(PathBuf::from("/nowhere"))), map: Rename };
+        let f = m.load(1).unwrap();
+        assert_eq!(f.info.id, "mapped-1");
+        assert_eq!(f.points.as_slice(), &[1.0, 0.0, 0.0, 1.0]);
+        assert_eq!(m.info(0).unwrap().id, "mapped-0");
     }
 }

@@ -13,7 +13,7 @@ pub mod pickle;
 pub mod points;
 pub mod summary;
 
-pub use dataset::{open, Dataset, Format};
+pub use dataset::{open, Dataset, Format, FrameMap, Mapped};
 pub use error::DataError;
 pub use frame::{Calib, CameraInfo, Frame, FrameInfo, KittiFields, Object, Platform};
 pub use points::{read_bin, write_bin, PointCloud};

@@ -66,17 +66,14 @@ pub fn frame_id(plan: &ReplayPlan, k: usize) -> u16 {
 pub fn datagrams(spec: &SynthSpec, plan: &ReplayPlan) -> Vec<Vec<Vec<u8>>> {
     let mut rng = Rng::new(plan.seed);
     let mut content = Rng::new(plan.seed ^ 0x5eed);
-    let packet_bytes = {
-        let one = sweep_packets(spec, 0, 0, &mut || 1);
-        one.len() / spec.columns.div_ceil(16)
-    };
+    let packets_per_sweep = spec.columns.div_ceil(16);
     let mut out: Vec<Vec<Vec<u8>>> = Vec::with_capacity(plan.sweeps);
     let mut carry: Option<Vec<u8>> = None;
     for k in 0..plan.sweeps {
         let t0 = 1_000_000_000 + k as u64 * 100_000_000;
         let bytes = sweep_packets(spec, usize::from(frame_id(plan, k)), t0, &mut || content.next_u64());
         let mut sweep = Vec::new();
-        for p in bytes.chunks_exact(packet_bytes) {
+        for p in bytes.chunks_exact(bytes.len() / packets_per_sweep) {
             let f = &plan.faults;
             if rng.chance(f.loss) {
                 continue;

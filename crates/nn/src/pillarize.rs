@@ -135,6 +135,11 @@ impl Pillarizer {
         Ok(Self { grid, max_points: cfg.max_points_per_pillar, lookup: vec![0; grid.nx * grid.ny] })
     }
 
+    /// Whether this pillarizer is the one `cfg` makes (same grid and pillar size).
+    pub fn fits(&self, cfg: &PillarizeConfig) -> bool {
+        Grid::new(cfg).is_ok_and(|g| g == self.grid) && cfg.max_points_per_pillar == self.max_points
+    }
+
     /// Pillarizes `points` (x, y, z, intensity); non-finite points and points outside the range
     /// are skipped.
     pub fn run(&mut self, points: &[[f32; 4]], max_pillars: usize) -> Pillars {

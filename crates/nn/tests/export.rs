@@ -116,3 +116,9 @@ fn single_stage_export_matches() {
 fn two_stage_export_matches() {
     check("pointpillars_rcnn_cpu.toml");
 }
+
+#[test]
+fn center_head_exports_match() {
+    check("centerpoint_cpu.toml");
+    check("centerpoint_rcnn_cpu.toml");
+}

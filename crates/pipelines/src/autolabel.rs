@@ -5,7 +5,7 @@
 //!
 //! `pi3det autolabel --data runs/demo/data/drone/val --ckpt A.safetensors --ckpt B.safetensors --tta flip,rot --out labels/`
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{bail, Context, Result};
@@ -13,7 +13,7 @@ use pi3det_autolabel::fusion::{fuse, FusionConfig, FusionInput};
 use pi3det_autolabel::quality::{quality, quality_table, Quality};
 use pi3det_autolabel::tracking::{track_dataset, TrackingConfig};
 use pi3det_autolabel::LabelSet;
-use pi3det_data::{DataError, Dataset, Format, Frame, FrameInfo, Object, PointCloud};
+use pi3det_data::{DataError, Dataset, FrameInfo, FrameMap, Mapped, Object, PointCloud};
 use pi3det_geometry::Box3d;
 use pi3det_nn::cli::{DataArgs, DeviceArgs};
 use pi3det_nn::data_loader::Subset;
@@ -147,37 +147,21 @@ fn views(kinds: &[TtaKind], rot_deg: f64) -> Vec<View> {
     v
 }
 
-/// A dataset seen through a [`View`]: points and boxes moved on load.
-struct ViewDataset {
-    inner: Arc<dyn Dataset>,
-    view: View,
-}
-
-impl Dataset for ViewDataset {
-    fn format(&self) -> Format {
-        self.inner.format()
+/// A dataset seen through a [`View`]: points and boxes moved.
+impl FrameMap for View {
+    fn info(&self, _index: usize, info: FrameInfo) -> FrameInfo {
+        self.info_in_view(info)
     }
-    fn root(&self) -> &Path {
-        self.inner.root()
-    }
-    fn len(&self) -> usize {
-        self.inner.len()
-    }
-    fn info(&self, index: usize) -> std::result::Result<FrameInfo, DataError> {
-        let info = self.inner.info(index)?;
-        Ok(self.view.info_in_view(info))
-    }
-    fn load(&self, index: usize) -> std::result::Result<Frame, DataError> {
-        let frame = self.inner.load(index)?;
-        let channels = frame.points.channels().to_vec();
-        let stride = frame.points.stride();
-        let mut data = frame.points.into_vec();
+    fn points(&self, _index: usize, points: PointCloud) -> std::result::Result<PointCloud, DataError> {
+        let channels = points.channels().to_vec();
+        let stride = points.stride();
+        let mut data = points.into_vec();
         for p in data.chunks_exact_mut(stride) {
-            let (x, y) = self.view.apply_xy(f64::from(p[0]), f64::from(p[1]));
+            let (x, y) = self.apply_xy(f64::from(p[0]), f64::from(p[1]));
             p[0] = x as f32;
             p[1] = y as f32;
         }
-        Ok(Frame { info: self.view.info_in_view(frame.info), points: PointCloud::from_vec(data, channels)? })
+        PointCloud::from_vec(data, channels)
     }
 }
 
@@ -230,7 +214,7 @@ pub fn run_autolabel(args: &AutolabelArgs) -> Result<()> {
             if let Some(h) = args.vpp_height {
                 prep = prep.with_frame_transform(pi3det_nn::cli::detect::vpp(&ck.config, h)?);
             }
-            let ds: Arc<dyn Dataset> = Arc::new(ViewDataset { inner: subset.dataset.clone(), view: *view });
+            let ds: Arc<dyn Dataset> = Arc::new(Mapped { inner: subset.dataset.clone(), map: *view });
             let sub = Subset { dataset: ds, indices: subset.indices.clone() };
             let (frames, _) = detect::detect_with(&det, Arc::new(prep), &sub, args.batch_size, &mut |_, _| {})?;
             let mut labels = LabelSet::default();

@@ -8,10 +8,9 @@
 //! precision and recall directly.
 
 use std::collections::HashMap;
-use std::path::Path;
 use std::sync::Arc;
 
-use pi3det_data::{DataError, Dataset, Format, FrameInfo, Object};
+use pi3det_data::{Dataset, FrameInfo, FrameMap, Mapped, Object};
 use pi3det_geometry::Box3d;
 use serde::{Deserialize, Serialize};
 
@@ -67,11 +66,20 @@ pub fn generate(
     Ok(frames)
 }
 
-/// A dataset whose frames carry pseudo-labels instead of their own annotations (frames without
-/// an entry have none).
+/// Pseudo-labels for a dataset's frames, replacing their own annotations (frames without an
+/// entry have none); [`subset`](Self::subset) reads the frames through them.
 pub struct PseudoLabeled {
     inner: Arc<dyn Dataset>,
     labels: HashMap<usize, Vec<Object>>,
+}
+
+struct Labels(HashMap<usize, Vec<Object>>);
+
+impl FrameMap for Labels {
+    fn info(&self, index: usize, mut info: FrameInfo) -> FrameInfo {
+        info.objects = self.0.get(&index).cloned().unwrap_or_default();
+        info
+    }
 }
 
 impl PseudoLabeled {
@@ -90,27 +98,8 @@ impl PseudoLabeled {
 
     /// The same frames as `subset`, read through the pseudo-labels.
     pub fn subset(self, subset: &Subset) -> Subset {
-        Subset { dataset: Arc::new(self), indices: subset.indices.clone() }
-    }
-}
-
-impl Dataset for PseudoLabeled {
-    fn format(&self) -> Format {
-        self.inner.format()
-    }
-
-    fn root(&self) -> &Path {
-        self.inner.root()
-    }
-
-    fn len(&self) -> usize {
-        self.inner.len()
-    }
-
-    fn info(&self, index: usize) -> std::result::Result<FrameInfo, DataError> {
-        let mut info = self.inner.info(index)?;
-        info.objects = self.labels.get(&index).cloned().unwrap_or_default();
-        Ok(info)
+        let dataset = Mapped { inner: self.inner, map: Labels(self.labels) };
+        Subset { dataset: Arc::new(dataset), indices: subset.indices.clone() }
     }
 }
 

@@ -107,26 +107,20 @@
      void main() { gl_Position = mvp * vec4(pos, 1.0); col = c; }`,
     `in vec3 col; out vec4 frag; void main() { frag = vec4(col, 1.0); }`
   );
-  const pointVao = gl.createVertexArray();
-  const pointPos = gl.createBuffer();
-  const pointVal = gl.createBuffer();
-  gl.bindVertexArray(pointVao);
-  gl.bindBuffer(gl.ARRAY_BUFFER, pointPos);
-  gl.enableVertexAttribArray(0);
-  gl.vertexAttribPointer(0, 3, gl.FLOAT, false, 0, 0);
-  gl.bindBuffer(gl.ARRAY_BUFFER, pointVal);
-  gl.enableVertexAttribArray(1);
-  gl.vertexAttribPointer(1, 1, gl.UNSIGNED_BYTE, true, 0, 0);
-  const lineVao = gl.createVertexArray();
-  const linePos = gl.createBuffer();
-  const lineCol = gl.createBuffer();
-  gl.bindVertexArray(lineVao);
-  gl.bindBuffer(gl.ARRAY_BUFFER, linePos);
-  gl.enableVertexAttribArray(0);
-  gl.vertexAttribPointer(0, 3, gl.FLOAT, false, 0, 0);
-  gl.bindBuffer(gl.ARRAY_BUFFER, lineCol);
-  gl.enableVertexAttribArray(1);
-  gl.vertexAttribPointer(1, 3, gl.FLOAT, false, 0, 0);
+  // A vertex array of two buffers: attribute 0 (positions, 3 floats) and attribute 1.
+  function vertexArray(size1, type1, normalized1) {
+    const vao = gl.createVertexArray();
+    const buffers = [gl.createBuffer(), gl.createBuffer()];
+    gl.bindVertexArray(vao);
+    [[3, gl.FLOAT, false], [size1, type1, normalized1]].forEach(([size, type, norm], i) => {
+      gl.bindBuffer(gl.ARRAY_BUFFER, buffers[i]);
+      gl.enableVertexAttribArray(i);
+      gl.vertexAttribPointer(i, size, type, norm, 0, 0);
+    });
+    return [vao, buffers[0], buffers[1]];
+  }
+  const [pointVao, pointPos, pointVal] = vertexArray(1, gl.UNSIGNED_BYTE, true);
+  const [lineVao, linePos, lineCol] = vertexArray(3, gl.FLOAT, false);
   gl.bindVertexArray(null);
 
   // ---------------------------------------------------------------- maths
