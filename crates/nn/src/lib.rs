@@ -9,6 +9,7 @@
 //! | --- | --- |
 //! | [`pillarize`] | points → pillars with decorated point features (rayon) |
 //! | [`vfe`], [`scatter`], [`backbone_2d`] | pillar feature net, BEV scatter, BEV backbone |
+//! | [`sparse`] | sparse 3-D convolution (rulebooks in Rust, gather → GEMM → scatter-add in tch) |
 //! | [`dense_heads`] | anchor head, center head |
 //! | [`target_assigner`], [`box_coder`], [`losses`] | anchors and IoU assignment, Gaussian heatmaps, encodings, losses |
 //! | [`augment`] | world flip / rotation / scaling, random object rotation, GT sampling, Random Platform Jitter |
@@ -50,6 +51,7 @@ pub mod post_process;
 pub mod preprocess;
 pub mod roi_heads;
 pub mod scatter;
+pub mod sparse;
 pub mod target_assigner;
 pub mod train;
 pub mod vfe;
