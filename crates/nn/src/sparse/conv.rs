@@ -179,7 +179,7 @@ impl SparseConv3d {
             out = out.index_add(0, &rb.out_idx, &Tensor::cat(&parts, 0));
         }
         if let Some(b) = &self.bias {
-            out = out + b;
+            out += b;
         }
         Ok(x.derived(out, &rb.book))
     }

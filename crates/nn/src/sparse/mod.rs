@@ -13,8 +13,10 @@
 pub mod conv;
 pub mod rulebook;
 
+use std::cell::RefCell;
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
+use std::rc::Rc;
+use std::sync::Arc;
 
 use tch::{Device, Kind, Tensor};
 
@@ -30,7 +32,8 @@ pub struct DeviceRulebook {
     pub out_idx: Tensor,
 }
 
-type Cache = Arc<Mutex<HashMap<String, Arc<DeviceRulebook>>>>;
+/// One forward pass's rulebooks (a sparse tensor lives on one thread).
+type Cache = Rc<RefCell<HashMap<String, Rc<DeviceRulebook>>>>;
 
 /// Features on the active sites of a `[B, D, H, W]` grid.
 pub struct SparseTensor {
@@ -122,23 +125,22 @@ impl SparseTensor {
     }
 
     /// The rulebook cached under `key`, built by `build` the first time.
-    pub fn rulebook(&self, key: &str, build: impl FnOnce() -> Result<Rulebook>) -> Result<Arc<DeviceRulebook>> {
-        let mut cache = self.cache.lock().map_err(|_| NnError::Input("sparse rulebook cache poisoned".into()))?;
-        if let Some(rb) = cache.get(key) {
-            return Ok(rb.clone());
+    pub fn rulebook(&self, key: &str, build: impl FnOnce() -> Result<Rulebook>) -> Result<Rc<DeviceRulebook>> {
+        if let Some(rb) = self.cached(key) {
+            return Ok(rb);
         }
         let book = build()?;
         let device = self.features.device();
         let in_idx = Tensor::from_slice(&book.in_idx).to_device(device);
         let out_idx = Tensor::from_slice(&book.out_idx).to_device(device);
-        let rb = Arc::new(DeviceRulebook { book, in_idx, out_idx });
-        cache.insert(key.to_string(), rb.clone());
+        let rb = Rc::new(DeviceRulebook { book, in_idx, out_idx });
+        self.cache.borrow_mut().insert(key.to_string(), rb.clone());
         Ok(rb)
     }
 
     /// A cached rulebook, if one was built under `key`.
-    pub fn cached(&self, key: &str) -> Option<Arc<DeviceRulebook>> {
-        self.cache.lock().ok()?.get(key).cloned()
+    pub fn cached(&self, key: &str) -> Option<Rc<DeviceRulebook>> {
+        self.cache.borrow().get(key).cloned()
     }
 
     /// A tensor on a rulebook's output sites (sharing this tensor's cache).
