@@ -72,6 +72,8 @@ enum BenchCommand {
     Nn(Forwarded),
     /// `pi3det run` end to end on loopback: latency per sweep (with and without VPP) and a soak.
     Live(Forwarded),
+    /// The sparse 3-D backbone (forward + backward) against the same network as dense conv3d.
+    Sparse(Forwarded),
 }
 
 fn main() -> std::process::ExitCode {
@@ -90,7 +92,7 @@ fn main() -> std::process::ExitCode {
             | Command::Demo(_)
             | Command::Run(_)
             | Command::Export(_)
-            | Command::Bench(BenchCommand::Nn(_) | BenchCommand::Live(_))
+            | Command::Bench(BenchCommand::Nn(_) | BenchCommand::Live(_) | BenchCommand::Sparse(_))
     ) {
         return finish(cmd::torch::run(&args));
     }
@@ -126,7 +128,7 @@ fn main() -> std::process::ExitCode {
         | Command::Demo(_)
         | Command::Run(_)
         | Command::Export(_)
-        | Command::Bench(BenchCommand::Nn(_) | BenchCommand::Live(_)) => {
+        | Command::Bench(BenchCommand::Nn(_) | BenchCommand::Live(_) | BenchCommand::Sparse(_)) => {
             unreachable!("handed to pi3det-torch above")
         }
     };

@@ -200,6 +200,11 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
         ..Default::default()
     };
     let Some((python, script)) = &opts.python else { return Ok(report) };
+    if cfg.backbone_3d.is_some() {
+        return Err(NnError::Config(
+            "the PyTorch side of bench nn is PointPillars; run voxel detectors with --no-torch".into(),
+        ));
+    }
     // Export the inputs for PyTorch.
     let dir = &opts.exchange;
     std::fs::create_dir_all(dir).map_err(|e| NnError::io(dir, e))?;

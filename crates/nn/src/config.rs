@@ -167,7 +167,10 @@ pub struct DetectorConfig {
     /// Run the BEV network in channels-last memory layout on the CPU (faster with oneDNN).
     pub channels_last: bool,
     pub batch_norm: crate::BatchNorm,
+    /// The pillar feature net (pillar grids; voxel grids average each voxel's points instead).
     pub vfe: PillarVfeConfig,
+    /// Sparse 3-D backbone over voxels (needs `[pillars] voxel_height`): SECOND, Voxel R-CNN.
+    pub backbone_3d: Option<crate::backbones_3d::Backbone3dConfig>,
     pub backbone: Backbone2dConfig,
     /// Optional BEV-to-BEV module between the backbone and the head.
     pub neck: Option<NeckConfig>,
@@ -193,6 +196,7 @@ impl Default for DetectorConfig {
             channels_last: true,
             batch_norm: crate::BatchNorm::default(),
             vfe: PillarVfeConfig::default(),
+            backbone_3d: None,
             backbone: Backbone2dConfig::default(),
             neck: None,
             head: HeadConfig::default(),
@@ -230,6 +234,25 @@ impl DetectorConfig {
         self.classes.iter().position(|c| c == name)
     }
 
+    /// The sparse grid `[D, H, W]` a 3-D backbone convolves (z padded by one, as OpenPCDet).
+    pub fn sparse_shape(&self) -> [i64; 3] {
+        let g = Grid::new(&self.pillars).map(|g| (g.nz, g.ny, g.nx)).unwrap_or((0, 0, 0));
+        crate::backbones_3d::Backbone3dConfig::input_shape(g.0, g.1, g.2)
+    }
+
+    /// Channels of the BEV map the 2-D backbone takes.
+    pub fn bev_input_channels(&self) -> i64 {
+        match &self.backbone_3d {
+            Some(b) => b.bev_channels(self.sparse_shape()),
+            None => self.vfe.out_channels(),
+        }
+    }
+
+    /// Down-sampling from the point grid to the dense head's map.
+    pub fn map_stride(&self) -> i64 {
+        self.backbone.output_stride() * self.backbone_3d.as_ref().map_or(1, |b| b.xy_stride())
+    }
+
     /// Checks everything that would otherwise fail deep inside training.
     pub fn validate(&self) -> Result<()> {
         if self.classes.is_empty() {
@@ -251,9 +274,25 @@ impl DetectorConfig {
                 self.vfe.num_filters
             )));
         }
+        match (&self.backbone_3d, grid.is_voxel()) {
+            (Some(b), true) => b.validate(self.sparse_shape())?,
+            (Some(_), false) => {
+                return Err(NnError::Config(
+                    "backbone_3d convolves voxels: set [pillars] voxel_height (the voxels' height in metres)".into(),
+                ))
+            }
+            (None, true) => return Err(NnError::Config(
+                "[pillars] voxel_height makes voxels, which need a [backbone_3d] (e.g. type = \"voxel_backbone_8x\")"
+                    .into(),
+            )),
+            (None, false) => {}
+        }
         // The scattered BEV map of one batch must fit in memory.
-        let bev_bytes =
-            (grid.nx * grid.ny) as f64 * self.vfe.out_channels() as f64 * 4.0 * self.train.batch_size as f64;
+        let s3 = self.backbone_3d.as_ref().map_or(1, |b| b.xy_stride()) as f64;
+        let bev_bytes = (grid.nx * grid.ny) as f64 / (s3 * s3)
+            * self.bev_input_channels() as f64
+            * 4.0
+            * self.train.batch_size as f64;
         if bev_bytes > MAX_BEV_BYTES {
             return Err(NnError::Config(format!(
                 "pillar grid {}×{} with {} channels at batch {} needs a {:.1} GiB BEV map (limit {:.0} GiB): use larger pillars or a smaller range",
@@ -275,7 +314,8 @@ impl DetectorConfig {
         if p.nms_pre_max == 0 || p.nms_post_max == 0 {
             return Err(NnError::Config("post: nms_pre_max and nms_post_max must be positive".into()));
         }
-        let total_stride: i64 = self.backbone.layer_strides.iter().product();
+        let total_stride: i64 = self.backbone.layer_strides.iter().product::<i64>()
+            * self.backbone_3d.as_ref().map_or(1, |b| b.xy_stride());
         if grid.nx as i64 % total_stride != 0 || grid.ny as i64 % total_stride != 0 {
             return Err(NnError::Config(format!(
                 "pillar grid {}×{} is not divisible by the backbone's total stride {total_stride}",
@@ -401,6 +441,11 @@ mod tests {
         let unknown = "[[train.augment]]\ntype = \"gt_sampling\"\nsample = [{ class = \"Cyclist\", count = 5 }]";
         assert!(err(unknown).contains("Cyclist"));
         assert!(err("[head]\ntype = \"anchor\"\nanchors = []").contains("head.anchors"));
+        // Voxels and a sparse backbone come together, and the grid must survive its strides.
+        assert!(err("[pillars]\nvoxel_height = 0.2").contains("backbone_3d"));
+        assert!(err("[backbone_3d]\ntype = \"voxel_backbone_8x\"").contains("voxel_height"));
+        let coarse = "[pillars]\nvoxel_height = 0.5\n[backbone_3d]\ntype = \"voxel_backbone_8x\"";
+        assert!(err(coarse).contains("25 voxels"));
     }
 
     #[test]
@@ -413,9 +458,13 @@ mod tests {
             "pointpillars_rcnn_cpu.toml",
             "centerpoint_rcnn_cpu.toml",
             "pointpillars_rcnn_paper.toml",
+            "second_cpu.toml",
+            "second_iou_cpu.toml",
+            "second_iou_paper.toml",
         ] {
             let cfg = DetectorConfig::from_file(&dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
-            assert_eq!(cfg.roi_head.is_some(), name.contains("rcnn"), "{name}");
+            assert_eq!(cfg.roi_head.is_some(), name.contains("rcnn") || name.contains("iou"), "{name}");
+            assert_eq!(cfg.backbone_3d.is_some(), name.starts_with("second"), "{name}");
         }
     }
 }

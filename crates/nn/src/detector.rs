@@ -2,8 +2,10 @@
 //! `vfe → [backbone_3d] → map_to_bev → backbone_2d → [neck] → dense_head → [roi_head]`, each
 //! built from its config. PointPillars (Lang et al., CVPR 2019) fills it with the pillar feature
 //! net, the pillar scatter and the BEV backbone; the dense head is the SECOND-style anchor head
-//! or the CenterPoint center head (Yin et al., CVPR 2021). The `backbone_3d` slot (sparse 3-D
-//! convolution) is where voxel detectors will go; it is empty for pillars.
+//! or the CenterPoint center head (Yin et al., CVPR 2021). Voxel detectors (SECOND, Yan et al.
+//! 2018) fill `vfe` with the voxels' point means, `backbone_3d` with a sparse 3-D backbone
+//! ([`crate::backbones_3d`]) and `map_to_bev` with its height compression; for pillars
+//! `backbone_3d` is empty and `map_to_bev` is the pillar scatter.
 //!
 //! Train: `pi3det train --config configs/pointpillars_cpu.toml --data DIR --out runs/pp`;
 //! detect: `pi3det detect --ckpt runs/pp/final.safetensors --data DIR --out det/`.
@@ -19,6 +21,7 @@ use tch::{Device, Tensor};
 
 use crate::adapt::pfa::{Latent, Pfa};
 use crate::backbone_2d::Backbone2d;
+use crate::backbones_3d::{height_compression, Backbone3d};
 use crate::config::DetectorConfig;
 use crate::data_loader::FrameGt;
 use crate::dense_heads::{AnyDenseHead, BatchTargets, DenseOutput};
@@ -32,7 +35,8 @@ pub use crate::preprocess::{Inputs, Preprocessor};
 use crate::roi_heads::roi_head::refined_frames;
 use crate::roi_heads::{ProposalBatch, Proposals, RoiBatchTargets, RoiOutput, SecondStage};
 use crate::scatter::scatter;
-use crate::vfe::PillarVfe;
+use crate::sparse::SparseTensor;
+use crate::vfe::{MeanVfe, Vfe};
 
 /// What one forward pass produced: the BEV map the heads saw and their outputs.
 pub struct Forward {
@@ -67,7 +71,8 @@ pub struct RoiStage {
 pub struct Detector {
     pub vs: VarStore,
     pub prep: Arc<Preprocessor>,
-    vfe: PillarVfe,
+    vfe: Vfe,
+    backbone_3d: Option<Box<dyn Backbone3d>>,
     backbone_2d: Backbone2d,
     neck: Option<Box<dyn Neck>>,
     dense_head: Box<dyn AnyDenseHead>,
@@ -87,8 +92,14 @@ impl Detector {
         let vs = VarStore::new(device);
         let root = vs.root();
         let bn = &cfg.batch_norm;
-        let vfe = cfg.vfe.init(&root / "vfe", bn);
-        let backbone_2d = cfg.backbone.init(&root / "backbone_2d", cfg.vfe.out_channels(), bn);
+        let (vfe, backbone_3d) = match &cfg.backbone_3d {
+            Some(b) => {
+                let mean = MeanVfe;
+                (Vfe::Mean(mean), Some(b.init(&root / "backbone_3d", mean.out_channels(), bn)))
+            }
+            None => (Vfe::Pillar(cfg.vfe.init(&root / "vfe", bn)), None),
+        };
+        let backbone_2d = cfg.backbone.init(&root / "backbone_2d", cfg.bev_input_channels(), bn);
         let mut c = cfg.backbone.out_channels();
         let neck = cfg.neck.as_ref().map(|n| n.init(&root / "neck", c, bn));
         if let Some(n) = &neck {
@@ -104,7 +115,7 @@ impl Detector {
             (Some(_), None) => return Err(NnError::Config("pfa needs a second stage (roi_head)".into())),
             (None, _) => None,
         };
-        Ok(Self { vs, prep, vfe, backbone_2d, neck, dense_head, roi_head, pfa })
+        Ok(Self { vs, prep, vfe, backbone_3d, backbone_2d, neck, dense_head, roi_head, pfa })
     }
 
     pub fn cfg(&self) -> &DetectorConfig {
@@ -127,18 +138,36 @@ impl Detector {
         self.vs.variables().into_iter().filter(|(_, t)| ptrs.contains(&(t.data_ptr() as usize))).collect()
     }
 
-    /// `vfe → map_to_bev → backbone_2d → [neck]`: BEV features `[B, C, H, W]` of a batch, with
-    /// the neck's rotation prediction when it makes one.
-    pub fn bev_features(&self, x: &Inputs, train: bool) -> NeckOutput {
-        let pillar = self.vfe.forward_t(&x.features, train);
+    /// `vfe → [backbone_3d] → map_to_bev → backbone_2d → [neck]`: BEV features `[B, C, H, W]`
+    /// of a batch, with the neck's rotation prediction when it makes one.
+    pub fn bev_features(&self, x: &Inputs, train: bool) -> Result<NeckOutput> {
+        let cell_features = self.vfe.forward_t(&x.features, train);
         let channels_last = self.cfg().channels_last && self.device() == Device::Cpu;
-        let bev =
-            scatter(&pillar, &x.cells, x.batch_size, self.prep.grid.ny as i64, self.prep.grid.nx as i64, channels_last);
+        let g = &self.prep.grid;
+        let bev = match &self.backbone_3d {
+            Some(b3) => {
+                let index_shape = [g.nz as i64, g.ny as i64, g.nx as i64];
+                let sparse = SparseTensor::from_flat_indices(
+                    cell_features,
+                    &x.cells,
+                    index_shape,
+                    self.cfg().sparse_shape(),
+                    x.batch_size,
+                )?;
+                height_compression(&b3.forward_t(&sparse, train)?.out, channels_last)
+            }
+            None => scatter(&cell_features, &x.cells, x.batch_size, g.ny as i64, g.nx as i64, channels_last),
+        };
         let bev = self.backbone_2d.forward_t(&bev, train);
-        match &self.neck {
+        Ok(match &self.neck {
             Some(n) => n.forward_t(&bev, train),
             None => NeckOutput { bev, rotation_deg: None },
-        }
+        })
+    }
+
+    /// Whether the chain has a sparse 3-D backbone (a voxel detector).
+    pub fn has_backbone_3d(&self) -> bool {
+        self.backbone_3d.is_some()
     }
 
     pub fn has_roi_head(&self) -> bool {
@@ -148,7 +177,7 @@ impl Detector {
     /// The chain on a batch for inference (eval-mode when `train` is false). With a second
     /// stage, the RoIs are the dense head's proposals (test limits).
     pub fn forward_t(&self, x: &Inputs, train: bool) -> Result<Forward> {
-        let NeckOutput { bev, rotation_deg } = self.bev_features(x, train);
+        let NeckOutput { bev, rotation_deg } = self.bev_features(x, train)?;
         let dense = self.dense_head.forward_t(&bev, train);
         let roi = match &self.roi_head {
             Some(stage) => {
@@ -165,7 +194,7 @@ impl Detector {
     /// The chain on a training batch: with a second stage, RoIs are sampled from the dense head's
     /// proposals (train limits) against `gt` (one entry per frame, detector frame).
     pub fn forward_train(&self, x: &Inputs, gt: &[FrameGt], rng: &mut ChaCha8Rng) -> Result<Forward> {
-        let NeckOutput { bev, rotation_deg } = self.bev_features(x, true);
+        let NeckOutput { bev, rotation_deg } = self.bev_features(x, true)?;
         let dense = self.dense_head.forward_t(&bev, true);
         let roi = match &self.roi_head {
             Some(stage) => {
@@ -279,7 +308,7 @@ impl Detector {
     /// The network up to the dense head, as tensors `[bev, head outputs…]` (eval mode): what a
     /// TorchScript export of the first stage computes from `(features, cells)`.
     pub fn dense_tensors(&self, x: &Inputs) -> Result<Vec<Tensor>> {
-        let NeckOutput { bev, .. } = self.bev_features(x, false);
+        let NeckOutput { bev, .. } = self.bev_features(x, false)?;
         let dense = self.dense_head.forward_t(&bev, false);
         let mut out = vec![bev];
         out.extend(self.dense_head.output_tensors(&dense)?);

@@ -115,6 +115,20 @@ pub fn set_threads(n: usize) {
     tch::set_num_threads(n.max(1) as i32);
 }
 
+/// Makes glibc keep freed memory for reuse instead of handing each large block back to the
+/// kernel. libtorch on the CPU allocates and frees tens of MB per layer and step; with glibc's
+/// defaults every such block comes back as fresh pages the kernel must fault in and zero, which
+/// measured slower than the arithmetic (a 56 MB `index_select` 26 ms against 3.6 ms with the
+/// memory kept). Call once, at the start of a process that runs networks; a no-op off glibc.
+pub fn keep_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only changes allocator thresholds; it is called before other threads start.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 30);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, i32::MAX);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -102,6 +102,12 @@ pub fn export(det: &mut Detector, example: &Inputs, out: &Path) -> Result<Export
     if example.batch_size != 1 {
         return Err(NnError::Input("the export traces one frame (batch size 1)".into()));
     }
+    if det.has_backbone_3d() {
+        // A trace records tensor operations only; the rulebooks are built in Rust per frame.
+        return Err(NnError::Config(
+            "TorchScript export covers pillar detectors: a sparse 3-D backbone builds its rulebooks in Rust on every frame, which a trace cannot record".into(),
+        ));
+    }
     det.vs.freeze();
     let _guard = tch::no_grad_guard();
     let x = example.to_device(det.device());

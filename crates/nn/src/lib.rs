@@ -9,6 +9,7 @@
 //! | --- | --- |
 //! | [`pillarize`] | points → pillars with decorated point features (rayon) |
 //! | [`vfe`], [`scatter`], [`backbone_2d`] | pillar feature net, BEV scatter, BEV backbone |
+//! | [`backbones_3d`] | the `backbone_3d` slot (`VoxelBackBone8x`) and its `map_to_bev` (height compression) |
 //! | [`sparse`] | sparse 3-D convolution (rulebooks in Rust, gather → GEMM → scatter-add in tch) |
 //! | [`dense_heads`] | anchor head, center head |
 //! | [`target_assigner`], [`box_coder`], [`losses`] | anchors and IoU assignment, Gaussian heatmaps, encodings, losses |
@@ -29,6 +30,7 @@
 pub mod adapt;
 pub mod augment;
 pub mod backbone_2d;
+pub mod backbones_3d;
 pub mod bench;
 pub mod box_coder;
 pub mod checkpoint;

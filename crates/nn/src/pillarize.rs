@@ -3,6 +3,10 @@
 //! point decorated with its offsets to the pillar's point mean and to the pillar's centre
 //! (OpenPCDet `PillarVFE` features: x, y, z, intensity, x−x̄, y−ȳ, z−z̄, x−x_c, y−y_c, z−z_c).
 //!
+//! With `voxel_height` the grid is cut along z too and each cell is a voxel whose feature is the
+//! mean of its points' (x, y, z, intensity) (OpenPCDet `MeanVFE`): the input of the voxel
+//! detectors' sparse 3-D backbone ([`crate::sparse`]).
+//!
 //! Cells are taken in the order their first point arrives (OpenPCDet's voxel generator), so the
 //! result is deterministic; the decoration runs in parallel over pillars (rayon).
 
@@ -13,6 +17,9 @@ use crate::error::{NnError, Result};
 
 /// Number of decorated features per point.
 pub const POINT_FEATURES: usize = 10;
+
+/// Features of a voxel (mean x, y, z, intensity of its points).
+pub const VOXEL_FEATURES: usize = 4;
 
 /// The grid: range and pillar size.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -26,6 +33,10 @@ pub struct PillarizeConfig {
     /// Pillars kept per frame when training / at inference (first come, first kept).
     pub max_pillars_train: usize,
     pub max_pillars_test: usize,
+    /// Voxel detectors: the cells' height in metres (cells become voxels of `pillar_size` ×
+    /// this; `max_points_per_pillar` and `max_pillars_*` then count points per voxel and voxels).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub voxel_height: Option<f64>,
 }
 
 impl Default for PillarizeConfig {
@@ -36,6 +47,7 @@ impl Default for PillarizeConfig {
             max_points_per_pillar: 20,
             max_pillars_train: 16000,
             max_pillars_test: 24000,
+            voxel_height: None,
         }
     }
 }
@@ -51,9 +63,12 @@ pub struct Grid {
     pub z_max: f64,
     pub vx: f64,
     pub vy: f64,
-    /// Cells along x (columns of the BEV map) and y (rows).
+    /// Cell height: the whole z range for pillars.
+    pub vz: f64,
+    /// Cells along x (columns of the BEV map), y (rows) and z (1 for pillars).
     pub nx: usize,
     pub ny: usize,
+    pub nz: usize,
 }
 
 impl Grid {
@@ -71,13 +86,42 @@ impl Grid {
         if nx == 0 || ny == 0 || nx * ny > 64 << 20 {
             return Err(NnError::Config(format!("pillar grid {nx}×{ny} is empty or too large")));
         }
+        let (vz, nz) = match cfg.voxel_height {
+            None => (r[5] - r[2], 1),
+            Some(h) if h.is_finite() && h > 0.0 => {
+                let nz = ((r[5] - r[2]) / h).round() as usize;
+                if nz == 0 || nz > 4096 {
+                    return Err(NnError::Config(format!("voxel_height {h}: {nz} voxels along z (want 1..=4096)")));
+                }
+                (h, nz)
+            }
+            Some(h) => return Err(NnError::Config(format!("voxel_height {h} must be positive"))),
+        };
         if cfg.max_points_per_pillar == 0 || cfg.max_pillars_train == 0 || cfg.max_pillars_test == 0 {
             return Err(NnError::Config("max_points_per_pillar and max_pillars_* must be positive".into()));
         }
-        Ok(Self { x_min: r[0], y_min: r[1], z_min: r[2], x_max: r[3], y_max: r[4], z_max: r[5], vx, vy, nx, ny })
+        Ok(Self {
+            x_min: r[0],
+            y_min: r[1],
+            z_min: r[2],
+            x_max: r[3],
+            y_max: r[4],
+            z_max: r[5],
+            vx,
+            vy,
+            vz,
+            nx,
+            ny,
+            nz,
+        })
     }
 
-    /// Cell of a point, `None` outside the range (max bounds exclusive).
+    /// Whether cells are voxels (the grid is cut along z).
+    pub fn is_voxel(&self) -> bool {
+        self.nz > 1
+    }
+
+    /// Cell of a point, `iz·ny·nx + iy·nx + ix`; `None` outside the range (max bounds exclusive).
     #[inline]
     pub fn cell(&self, x: f32, y: f32, z: f32) -> Option<usize> {
         let (x, y, z) = (x as f64, y as f64, z as f64);
@@ -92,7 +136,8 @@ impl Grid {
         }
         let ix = (((x - self.x_min) / self.vx) as usize).min(self.nx - 1);
         let iy = (((y - self.y_min) / self.vy) as usize).min(self.ny - 1);
-        Some(iy * self.nx + ix)
+        let iz = (((z - self.z_min) / self.vz) as usize).min(self.nz - 1);
+        Some((iz * self.ny + iy) * self.nx + ix)
     }
 
     pub fn contains_xy(&self, x: f64, y: f64) -> bool {
@@ -103,11 +148,13 @@ impl Grid {
 /// Pillars of one frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Pillars {
-    /// `[num_pillars, max_points, POINT_FEATURES]`, zero-padded.
+    /// `[num_pillars, max_points, point_features]`, zero-padded (voxels: `[V, 1, 4]` means).
     pub features: Vec<f32>,
-    /// Flat BEV cell of each pillar, `iy * nx + ix`.
+    /// Flat cell of each pillar, `iy * nx + ix` (voxels: `(iz * ny + iy) * nx + ix`).
     pub cells: Vec<i64>,
     pub max_points: usize,
+    /// Features per point slot: [`POINT_FEATURES`] or [`VOXEL_FEATURES`].
+    pub point_features: usize,
     /// Points that fell in a full pillar or beyond `max_pillars` and were dropped.
     pub dropped_points: usize,
 }
@@ -125,14 +172,16 @@ impl Pillars {
 pub struct Pillarizer {
     pub grid: Grid,
     max_points: usize,
-    /// Cell → pillar index + 1 (0: empty); reset after each frame through `touched`.
+    /// Cell → pillar index + 1 (0: empty); reset after each frame through `touched`. Empty for
+    /// voxel grids (a table of nx·ny·nz cells would be hundreds of MB; they use a hash).
     lookup: Vec<u32>,
 }
 
 impl Pillarizer {
     pub fn new(cfg: &PillarizeConfig) -> Result<Self> {
         let grid = Grid::new(cfg)?;
-        Ok(Self { grid, max_points: cfg.max_points_per_pillar, lookup: vec![0; grid.nx * grid.ny] })
+        let lookup = if grid.is_voxel() { Vec::new() } else { vec![0; grid.nx * grid.ny] };
+        Ok(Self { grid, max_points: cfg.max_points_per_pillar, lookup })
     }
 
     /// Whether this pillarizer is the one `cfg` makes (same grid and pillar size).
@@ -143,6 +192,9 @@ impl Pillarizer {
     /// Pillarizes `points` (x, y, z, intensity); non-finite points and points outside the range
     /// are skipped.
     pub fn run(&mut self, points: &[[f32; 4]], max_pillars: usize) -> Pillars {
+        if self.grid.is_voxel() {
+            return self.voxelize(points, max_pillars);
+        }
         let g = self.grid;
         let m = self.max_points;
         // Pass 1 (sequential, cheap): assign points to pillars in arrival order.
@@ -212,7 +264,45 @@ impl Pillarizer {
                 ]);
             }
         });
-        Pillars { features, cells, max_points: m, dropped_points: dropped }
+        Pillars { features, cells, max_points: m, point_features: POINT_FEATURES, dropped_points: dropped }
+    }
+
+    /// Voxels with the mean of their first `max_points` points (arrival order), at most
+    /// `max_voxels`; the rest is counted in `dropped_points`.
+    fn voxelize(&self, points: &[[f32; 4]], max_voxels: usize) -> Pillars {
+        let g = self.grid;
+        let mut index: rustc_hash::FxHashMap<usize, u32> = Default::default();
+        let mut cells: Vec<i64> = Vec::new();
+        let mut sums: Vec<[f32; 4]> = Vec::new();
+        let mut counts: Vec<u32> = Vec::new();
+        let mut dropped = 0usize;
+        for p in points {
+            let Some(c) = g.cell(p[0], p[1], p[2]) else { continue };
+            let v = match index.get(&c) {
+                Some(&v) => v as usize,
+                None => {
+                    if cells.len() >= max_voxels {
+                        dropped += 1;
+                        continue;
+                    }
+                    index.insert(c, cells.len() as u32);
+                    cells.push(c as i64);
+                    sums.push([0.0; 4]);
+                    counts.push(0);
+                    cells.len() - 1
+                }
+            };
+            if counts[v] as usize >= self.max_points {
+                dropped += 1;
+                continue;
+            }
+            for (s, x) in sums[v].iter_mut().zip(p) {
+                *s += x;
+            }
+            counts[v] += 1;
+        }
+        let features = sums.iter().zip(&counts).flat_map(|(s, &n)| s.map(|v| v / n as f32)).collect();
+        Pillars { features, cells, max_points: 1, point_features: VOXEL_FEATURES, dropped_points: dropped }
     }
 }
 
@@ -227,7 +317,35 @@ mod tests {
             max_points_per_pillar: 2,
             max_pillars_train: 3,
             max_pillars_test: 3,
+            voxel_height: None,
         }
+    }
+
+    /// Voxels: cells along z too, each the mean of its first points; full voxels and voxels
+    /// beyond the limit drop points (counted).
+    #[test]
+    fn voxels_average_their_points() {
+        let c = PillarizeConfig { voxel_height: Some(0.5), ..cfg() };
+        let mut p = Pillarizer::new(&c).unwrap();
+        assert_eq!((p.grid.nx, p.grid.ny, p.grid.nz), (4, 4, 4));
+        let pts = [
+            [0.5, -1.5, -0.9, 0.2], // voxel (0, 0, 0)
+            [0.5, -1.5, 0.1, 0.5],  // (0, 0, 2): cell 2·16
+            [0.7, -1.3, -0.7, 0.4], // (0, 0, 0) again
+            [0.6, -1.4, -0.8, 0.0], // third point in a full voxel: dropped
+            [3.5, 1.5, 0.9, 1.0],   // (3, 3, 3): the third voxel
+            [2.5, 1.5, 0.9, 1.0],   // fourth voxel: dropped
+            [f32::NAN, 0.0, 0.0, 0.0],
+        ];
+        let r = p.run(&pts, 3);
+        assert_eq!(r.cells, vec![0, 32, 3 * 16 + 3 * 4 + 3]);
+        assert_eq!((r.max_points, r.point_features, r.dropped_points), (1, VOXEL_FEATURES, 2));
+        let want = [0.6, -1.4, -0.8, 0.3];
+        for (a, b) in r.features[..4].iter().zip(want) {
+            assert!((a - b).abs() < 1e-6, "{:?}", &r.features[..4]);
+        }
+        assert_eq!(&r.features[4..8], &[0.5, -1.5, 0.1, 0.5]);
+        assert!(Grid::new(&PillarizeConfig { voxel_height: Some(-1.0), ..cfg() }).is_err());
     }
 
     #[test]

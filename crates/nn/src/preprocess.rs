@@ -12,7 +12,7 @@ use crate::augment::Sample;
 use crate::config::DetectorConfig;
 use crate::dense_heads::{AnyAssigner, BatchTargets, FrameTargets};
 use crate::error::Result;
-use crate::pillarize::{Grid, Pillarizer, Pillars, POINT_FEATURES};
+use crate::pillarize::{Grid, Pillarizer, Pillars, POINT_FEATURES, VOXEL_FEATURES};
 use crate::target_assigner::center::CenterMap;
 
 /// Where a frame goes before the network sees it: `detector_from_lidar` per frame. The config's
@@ -32,11 +32,11 @@ impl FrameTransform for ShiftZ {
     }
 }
 
-/// Network input of a batch: pillars of all frames.
+/// Network input of a batch: pillars (or voxels) of all frames.
 pub struct Inputs {
-    /// `[ΣP, M, 10]` decorated points.
+    /// `[ΣP, M, 10]` decorated points (voxels: `[ΣV, 1, 4]` point means).
     pub features: Tensor,
-    /// `[ΣP]` flat BEV index `b·ny·nx + cell`.
+    /// `[ΣP]` flat index `b·nz·ny·nx + cell` (pillars: nz = 1).
     pub cells: Tensor,
     pub batch_size: i64,
 }
@@ -63,7 +63,7 @@ impl Preprocessor {
     pub fn new(cfg: &DetectorConfig) -> Result<Self> {
         cfg.validate()?;
         let grid = Grid::new(&cfg.pillars)?;
-        let s = cfg.backbone.output_stride() as usize;
+        let s = cfg.map_stride() as usize;
         let map = CenterMap {
             h: grid.ny / s,
             w: grid.nx / s,
@@ -127,17 +127,20 @@ impl Preprocessor {
 
     /// Stacks frames' pillars into network inputs.
     pub fn collate_inputs(&self, pillars: &[&Pillars]) -> Inputs {
-        let m = self.cfg.pillars.max_points_per_pillar;
+        let (m, f) = if self.grid.is_voxel() {
+            (1, VOXEL_FEATURES)
+        } else {
+            (self.cfg.pillars.max_points_per_pillar, POINT_FEATURES)
+        };
         let total: usize = pillars.iter().map(|p| p.len()).sum();
         let mut cells = Vec::with_capacity(total);
-        let plane = (self.grid.nx * self.grid.ny) as i64;
+        let plane = (self.grid.nx * self.grid.ny * self.grid.nz) as i64;
         for (b, p) in pillars.iter().enumerate() {
             cells.extend(p.cells.iter().map(|&c| c + b as i64 * plane));
         }
         // The frames' features go straight into the tensor's memory (one copy).
-        let features =
-            Tensor::empty([total as i64, m as i64, POINT_FEATURES as i64], (tch::Kind::Float, tch::Device::Cpu));
-        let n = total * m * POINT_FEATURES;
+        let features = Tensor::empty([total as i64, m as i64, f as i64], (tch::Kind::Float, tch::Device::Cpu));
+        let n = total * m * f;
         if n > 0 {
             // SAFETY: a fresh, contiguous CPU float tensor of exactly `n` elements, not shared.
             let dst = unsafe { std::slice::from_raw_parts_mut(features.data_ptr() as *mut f32, n) };

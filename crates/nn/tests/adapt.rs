@@ -35,6 +35,7 @@ fn config() -> AdaptConfig {
             max_points_per_pillar: 8,
             max_pillars_train: 4000,
             max_pillars_test: 4000,
+            voxel_height: None,
         },
         vfe: PillarVfeConfig { num_filters: vec![16] },
         backbone: Backbone2dConfig {

@@ -1,8 +1,9 @@
 //! End-to-end sanity: a small detector overfits one simulated frame (pillarize → network → loss →
 //! AdamW) and then finds each of its boxes — BEV IoU > 0.7 for cars, > 0.5 for pedestrians — with
 //! no false positive above the score threshold. Once with the anchor head, once with the center
-//! head, and once through the second stage in a rotated detector frame. Kept small enough for CI
-//! on two cores.
+//! head, once through the second stage in a rotated detector frame, and once as SECOND (voxels →
+//! sparse 3-D backbone → height compression) with and without the second stage. Kept small
+//! enough for CI on two cores.
 
 use pi3det_data::{Frame, Platform};
 use std::sync::Arc;
@@ -10,6 +11,7 @@ use std::sync::Arc;
 use pi3det_geometry::{bev_iou, Pose};
 use pi3det_nn::augment::Sample;
 use pi3det_nn::backbone_2d::Backbone2dConfig;
+use pi3det_nn::backbones_3d::{Backbone3dConfig, VoxelBackbone8xConfig};
 use pi3det_nn::config::{HeadConfig, PostConfig, TrainConfig};
 use pi3det_nn::data_loader::FrameGt;
 use pi3det_nn::dense_heads::{AnchorHeadConfig, CenterHeadConfig};
@@ -62,6 +64,7 @@ fn config(head: HeadConfig) -> DetectorConfig {
             max_points_per_pillar: 16,
             max_pillars_train: 12000,
             max_pillars_test: 12000,
+            voxel_height: None,
         },
         vfe: PillarVfeConfig { num_filters: vec![32] },
         backbone: Backbone2dConfig {
@@ -96,11 +99,22 @@ impl FrameTransform for Fixed {
 /// Trains on one frame (in the detector's frame given by `transform`, else the config's shift)
 /// and checks the detections, mapped back to the LiDAR frame, against the frame's own labels.
 fn overfit_with(head: HeadConfig, roi: Option<RoiHeadConfig>, transform: Option<Pose>, steps: usize) {
+    overfit_config(head, roi, transform, steps, |_| {})
+}
+
+fn overfit_config(
+    head: HeadConfig,
+    roi: Option<RoiHeadConfig>,
+    transform: Option<Pose>,
+    steps: usize,
+    edit: impl FnOnce(&mut DetectorConfig),
+) {
     tch::manual_seed(0);
     tch::set_num_threads(1);
     let frame = sim_frame();
     let mut cfg = config(head);
     cfg.roi_head = roi;
+    edit(&mut cfg);
     let mut prep = Preprocessor::new(&cfg).unwrap();
     if let Some(t) = transform {
         prep = prep.with_frame_transform(Arc::new(Fixed(t)));
@@ -203,4 +217,45 @@ fn two_stage_overfits_one_frame_in_a_rotated_detector_frame() {
         ..Default::default()
     };
     overfit_with(HeadConfig::Anchor(AnchorHeadConfig::default()), Some(roi), Some(t), 300);
+}
+
+/// SECOND's chain: 0.1 × 0.1 × 0.2 m voxels (mean VFE), a narrow VoxelBackBone8x, height
+/// compression, a two-block BEV backbone at the 3-D backbone's stride.
+fn second(cfg: &mut DetectorConfig) {
+    cfg.pillars.pillar_size = [0.1, 0.1];
+    cfg.pillars.voxel_height = Some(0.2);
+    cfg.pillars.max_points_per_pillar = 5;
+    cfg.pillars.max_pillars_train = 40000;
+    cfg.pillars.max_pillars_test = 40000;
+    cfg.backbone_3d = Some(Backbone3dConfig::VoxelBackbone8x(VoxelBackbone8xConfig {
+        channels: [8, 16, 16, 32],
+        blocks: [1, 1, 1, 1],
+        out_channels: 32,
+    }));
+    cfg.backbone = Backbone2dConfig {
+        layer_nums: vec![1, 1],
+        layer_strides: vec![1, 2],
+        num_filters: vec![32, 64],
+        upsample_strides: vec![1, 2],
+        num_upsample_filters: vec![32, 32],
+    };
+}
+
+#[test]
+fn second_overfits_one_frame() {
+    overfit_config(HeadConfig::Anchor(AnchorHeadConfig::default()), None, None, 250, second);
+}
+
+/// SECOND-IoU: SECOND with the BEV second stage.
+#[test]
+fn second_iou_overfits_one_frame() {
+    let roi = RoiHeadConfig {
+        shared_fc: vec![64],
+        cls_fc: vec![64],
+        reg_fc: vec![64],
+        point_channels: 16,
+        dropout: 0.0,
+        ..Default::default()
+    };
+    overfit_config(HeadConfig::Anchor(AnchorHeadConfig::default()), Some(roi), None, 300, second);
 }

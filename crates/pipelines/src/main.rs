@@ -49,9 +49,12 @@ enum BenchCommand {
     Nn(nn::BenchNnArgs),
     /// `pi3det run` end to end on loopback: latency per sweep (with and without VPP) and a soak.
     Live(pi3det_pipelines::bench_live::BenchLiveArgs),
+    /// The sparse 3-D backbone (forward + backward) against the same network as dense conv3d.
+    Sparse(nn::BenchSparseArgs),
 }
 
 fn main() -> std::process::ExitCode {
+    pi3det_nn::device::keep_freed_memory();
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
         .with_writer(std::io::stderr)
@@ -72,6 +75,10 @@ fn main() -> std::process::ExitCode {
         Command::Demo(args) => pi3det_pipelines::demo::run_demo(args).map(|_| ()),
         Command::Bench(BenchCommand::Live(args)) => pi3det_pipelines::bench_live::run(args),
         Command::Bench(BenchCommand::Nn(args)) => nn::run_bench_nn(args, &mut |n| {
+            pi3det_pipelines::frames::vehicle_frames(n).map_err(|e| NnError::Input(format!("simulation: {e}")))
+        })
+        .map_err(anyhow::Error::from),
+        Command::Bench(BenchCommand::Sparse(args)) => nn::run_bench_sparse(args, &mut |n| {
             pi3det_pipelines::frames::vehicle_frames(n).map_err(|e| NnError::Input(format!("simulation: {e}")))
         })
         .map_err(anyhow::Error::from),

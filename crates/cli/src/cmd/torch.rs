@@ -43,7 +43,7 @@ pub fn is_help_for_forwarded(args: &[OsString]) -> bool {
     matches!(
         words.as_slice(),
         ["help", "train" | "detect" | "adapt" | "autolabel" | "demo" | "run" | "export", ..]
-            | ["help", "bench", "nn" | "live"]
+            | ["help", "bench", "nn" | "live" | "sparse"]
     )
 }
 

@@ -10,6 +10,7 @@
 //! | [`adapt`](mod@adapt) | `adapt`: [`AdaptArgs`], [`run_adapt`] (Pi3DET-Net, progress bars per stage) |
 //! | [`detect`](mod@detect) | `detect`: [`DetectArgs`], [`run_detect`] |
 //! | [`bench`](mod@bench) | `bench nn`: [`BenchNnArgs`], [`run_bench_nn`] (frames from the caller by default) |
+//! | [`bench_sparse`] | `bench sparse`: the sparse 3-D backbone against dense `conv3d` |
 
 use std::path::Path;
 
@@ -20,12 +21,14 @@ use crate::error::{NnError, Result};
 pub mod adapt;
 pub mod args;
 pub mod bench;
+pub mod bench_sparse;
 pub mod detect;
 pub mod train;
 
 pub use adapt::{adapt_with_progress, run_adapt, AdaptArgs};
 pub use args::{open_subset, DataArgs, DeviceArgs};
 pub use bench::{run_bench_nn, BenchNnArgs};
+pub use bench_sparse::{run_bench_sparse, BenchSparseArgs};
 pub use detect::{format_latency, run_detect, DetectArgs};
 pub use train::{run_train, train_with_progress, TrainArgs};
 

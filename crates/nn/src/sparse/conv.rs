@@ -79,9 +79,14 @@ impl SparseConv3dConfig {
     pub fn output_shape(&self, shape: [i64; 3]) -> [i64; 3] {
         match self.kind {
             SparseConvKind::Submanifold | SparseConvKind::Inverse => shape,
-            SparseConvKind::Regular => {
-                std::array::from_fn(|a| (shape[a] + 2 * self.padding[a] - self.kernel[a]) / self.stride[a] + 1)
-            }
+            SparseConvKind::Regular => std::array::from_fn(|a| {
+                let span = shape[a] + 2 * self.padding[a] - self.kernel[a];
+                if span < 0 {
+                    0
+                } else {
+                    span / self.stride[a] + 1
+                }
+            }),
         }
     }
 
@@ -160,22 +165,33 @@ impl SparseConv3d {
             }
         };
         let k3 = rb.book.kernel_volume() as i64;
+        tracing::trace!(
+            key,
+            sites_in = x.len(),
+            sites_out = rb.book.out_coords.len(),
+            pairs = rb.book.num_pairs(),
+            "sparse conv"
+        );
         // [K³, C_in, C_out] matrices from the dense layout.
         let w = match c.kind {
             SparseConvKind::Inverse => self.weight.view([self.c_in, self.c_out, k3]).permute([2, 0, 1]),
             _ => self.weight.view([self.c_out, self.c_in, k3]).permute([2, 1, 0]),
-        };
+        }
+        .contiguous();
         let n_out = rb.book.out_coords.len() as i64;
         let mut out = Tensor::zeros([n_out, self.c_out], (x.features.kind(), x.features.device()));
         if rb.book.num_pairs() > 0 {
-            let gathered = x.features.index_select(0, &rb.in_idx);
-            let mut parts = Vec::new();
-            for k in 0..k3 as usize {
-                let (a, b) = (rb.book.offsets[k] as i64, rb.book.offsets[k + 1] as i64);
-                if b > a {
-                    parts.push(gathered.narrow(0, a, b - a).mm(&w.get(k as i64)));
-                }
-            }
+            // One split and one unbind (not a narrow / select per offset): their backward is one
+            // cat / stack, where 27 narrows would each zero-fill a gradient of all the pairs.
+            let sizes: Vec<i64> = rb.book.offsets.windows(2).map(|o| (o[1] - o[0]) as i64).collect();
+            let gathered = x.features.index_select(0, &rb.in_idx).split_with_sizes(&sizes, 0);
+            let parts: Vec<Tensor> = gathered
+                .iter()
+                .zip(w.unbind(0))
+                .zip(&sizes)
+                .filter(|(_, &n)| n > 0)
+                .map(|((g, wk), _)| g.mm(&wk))
+                .collect();
             out = out.index_add(0, &rb.out_idx, &Tensor::cat(&parts, 0));
         }
         if let Some(b) = &self.bias {

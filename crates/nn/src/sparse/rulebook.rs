@@ -147,7 +147,14 @@ impl Rulebook {
         if stride.iter().any(|&s| s < 1) || padding.iter().any(|&p| p < 0) {
             return Err(NnError::Config(format!("sparse convolution stride {stride:?} / padding {padding:?}")));
         }
-        let out_shape: [i64; 3] = std::array::from_fn(|a| (shape[a] + 2 * padding[a] - kernel[a]) / stride[a] + 1);
+        let out_shape: [i64; 3] = std::array::from_fn(|a| {
+            let span = shape[a] + 2 * padding[a] - kernel[a];
+            if span < 0 {
+                0
+            } else {
+                span / stride[a] + 1
+            }
+        });
         if out_shape.iter().any(|&d| d < 1) {
             return Err(NnError::Config(format!(
                 "sparse convolution of kernel {kernel:?}, stride {stride:?}, padding {padding:?} on shape {shape:?} has an empty output"
@@ -337,6 +344,8 @@ mod tests {
         let rb = Rulebook::regular(Arc::new(vec![]), [3, 3, 3], [3, 3, 3], [2, 2, 2], [1, 1, 1]).unwrap();
         assert_eq!((rb.num_pairs(), rb.out_coords.len(), rb.kernel_volume()), (0, 0, 27));
         assert!(Rulebook::regular(Arc::new(vec![]), [2, 3, 3], [3, 3, 3], [1, 1, 1], [0, 0, 0]).is_err());
+        // A span of −1 is empty (not −1 / 2 + 1 = 1).
+        assert!(Rulebook::regular(Arc::new(vec![]), [2, 3, 3], [3, 3, 3], [2, 2, 2], [0, 1, 1]).is_err());
         assert!(Rulebook::submanifold(Arc::new(vec![]), [0, 3, 3], [3, 3, 3]).is_err());
         assert!(Rulebook::submanifold(Arc::new(vec![]), [70000, 3, 3], [3, 3, 3]).is_err());
     }
