@@ -346,6 +346,11 @@ impl DetectorConfig {
         }
         if let Some(r) = &self.roi_head {
             r.validate()?;
+            if r.voxel_pool.is_some() && self.backbone_3d.is_none() {
+                return Err(NnError::Config(
+                    "roi_head.voxel_pool pools voxels: it needs a [backbone_3d] (a voxel detector)".into(),
+                ));
+            }
         }
         if let Some(n) = &self.neck {
             n.validate()?;
@@ -446,6 +451,7 @@ mod tests {
         assert!(err("[backbone_3d]\ntype = \"voxel_backbone_8x\"").contains("voxel_height"));
         let coarse = "[pillars]\nvoxel_height = 0.5\n[backbone_3d]\ntype = \"voxel_backbone_8x\"";
         assert!(err(coarse).contains("25 voxels"));
+        assert!(err("[roi_head.voxel_pool]\ngrid_size = 4").contains("backbone_3d"));
     }
 
     #[test]
@@ -461,10 +467,11 @@ mod tests {
             "second_cpu.toml",
             "second_iou_cpu.toml",
             "second_iou_paper.toml",
+            "voxel_rcnn_cpu.toml",
         ] {
             let cfg = DetectorConfig::from_file(&dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(cfg.roi_head.is_some(), name.contains("rcnn") || name.contains("iou"), "{name}");
-            assert_eq!(cfg.backbone_3d.is_some(), name.starts_with("second"), "{name}");
+            assert_eq!(cfg.backbone_3d.is_some(), name.starts_with("second") || name.starts_with("voxel"), "{name}");
         }
     }
 }

@@ -33,10 +33,13 @@ pub use crate::post_process::Detection;
 use crate::post_process::{nms_detections, to_detections};
 pub use crate::preprocess::{Inputs, Preprocessor};
 use crate::roi_heads::roi_head::refined_frames;
-use crate::roi_heads::{ProposalBatch, Proposals, RoiBatchTargets, RoiOutput, SecondStage};
+use crate::roi_heads::{ProposalBatch, Proposals, RoiBatchTargets, RoiOutput, RoiSource, SecondStage, StageGeometry};
 use crate::scatter::scatter;
 use crate::sparse::SparseTensor;
 use crate::vfe::{MeanVfe, Vfe};
+
+/// A sparse 3-D backbone's stages (stage `s` at index `s − 1`) with where their voxels lie.
+type VoxelStages = Vec<(SparseTensor, StageGeometry)>;
 
 /// What one forward pass produced: the BEV map the heads saw and their outputs.
 pub struct Forward {
@@ -73,6 +76,8 @@ pub struct Detector {
     pub prep: Arc<Preprocessor>,
     vfe: Vfe,
     backbone_3d: Option<Box<dyn Backbone3d>>,
+    /// Where each of the 3-D backbone's stages lies (for a second stage pooling voxels).
+    stage_geometry: Vec<StageGeometry>,
     backbone_2d: Backbone2d,
     neck: Option<Box<dyn Neck>>,
     dense_head: Box<dyn AnyDenseHead>,
@@ -106,16 +111,20 @@ impl Detector {
             c = n.out_channels();
         }
         let dense_head = cfg.head.init(&root / "dense_head", c, cfg.classes.len(), bn, &prep.map);
+        let stage_channels = cfg.backbone_3d.as_ref().map(|b| b.stage_channels()).unwrap_or_default();
         let roi_head = match &cfg.roi_head {
-            Some(r) => Some(Box::new(r.init(&root / "roi_head", c, bn)?) as Box<dyn SecondStage>),
+            Some(r) => {
+                Some(Box::new(r.init_with_stages(&root / "roi_head", c, &stage_channels, bn)?) as Box<dyn SecondStage>)
+            }
             None => None,
         };
+        let stage_geometry = cfg.backbone_3d.as_ref().map(|b| StageGeometry::of(b, &prep.grid)).unwrap_or_default();
         let pfa = match (&cfg.pfa, &roi_head) {
             (Some(p), Some(r)) => Some(p.init(&root / "pfa", r.feature_channels())),
             (Some(_), None) => return Err(NnError::Config("pfa needs a second stage (roi_head)".into())),
             (None, _) => None,
         };
-        Ok(Self { vs, prep, vfe, backbone_3d, backbone_2d, neck, dense_head, roi_head, pfa })
+        Ok(Self { vs, prep, vfe, backbone_3d, stage_geometry, backbone_2d, neck, dense_head, roi_head, pfa })
     }
 
     pub fn cfg(&self) -> &DetectorConfig {
@@ -141,9 +150,16 @@ impl Detector {
     /// `vfe → [backbone_3d] → map_to_bev → backbone_2d → [neck]`: BEV features `[B, C, H, W]`
     /// of a batch, with the neck's rotation prediction when it makes one.
     pub fn bev_features(&self, x: &Inputs, train: bool) -> Result<NeckOutput> {
+        Ok(self.features(x, train)?.0)
+    }
+
+    /// [`bev_features`](Self::bev_features) and, for voxel detectors, the 3-D backbone's stages
+    /// with their geometry.
+    fn features(&self, x: &Inputs, train: bool) -> Result<(NeckOutput, Option<VoxelStages>)> {
         let cell_features = self.vfe.forward_t(&x.features, train);
         let channels_last = self.cfg().channels_last && self.device() == Device::Cpu;
         let g = &self.prep.grid;
+        let mut stages = None;
         let bev = match &self.backbone_3d {
             Some(b3) => {
                 let index_shape = [g.nz as i64, g.ny as i64, g.nx as i64];
@@ -154,15 +170,19 @@ impl Detector {
                     self.cfg().sparse_shape(),
                     x.batch_size,
                 )?;
-                height_compression(&b3.forward_t(&sparse, train)?.out, channels_last)
+                let out = b3.forward_t(&sparse, train)?;
+                stages =
+                    Some(out.stages.into_iter().map(|(s, _)| s).zip(self.stage_geometry.iter().copied()).collect());
+                height_compression(&out.out, channels_last)
             }
             None => scatter(&cell_features, &x.cells, x.batch_size, g.ny as i64, g.nx as i64, channels_last),
         };
         let bev = self.backbone_2d.forward_t(&bev, train);
-        Ok(match &self.neck {
+        let neck = match &self.neck {
             Some(n) => n.forward_t(&bev, train),
             None => NeckOutput { bev, rotation_deg: None },
-        })
+        };
+        Ok((neck, stages))
     }
 
     /// Whether the chain has a sparse 3-D backbone (a voxel detector).
@@ -177,13 +197,14 @@ impl Detector {
     /// The chain on a batch for inference (eval-mode when `train` is false). With a second
     /// stage, the RoIs are the dense head's proposals (test limits).
     pub fn forward_t(&self, x: &Inputs, train: bool) -> Result<Forward> {
-        let NeckOutput { bev, rotation_deg } = self.bev_features(x, train)?;
+        let (NeckOutput { bev, rotation_deg }, voxels) = self.features(x, train)?;
         let dense = self.dense_head.forward_t(&bev, train);
         let roi = match &self.roi_head {
             Some(stage) => {
                 let props = self.proposals(stage.as_ref(), &dense, x.batch_size, false)?;
                 let batch = ProposalBatch::collate(&props).to_device(self.device());
-                let out = stage.forward_t(&bev, &batch.rois, &self.prep.map, train)?;
+                let src = RoiSource { bev: &bev, voxels: voxels.as_deref() };
+                let out = stage.forward_t(&src, &batch.rois, &self.prep.map, train)?;
                 Some(RoiStage { out, targets: None, proposals: Some(batch) })
             }
             None => None,
@@ -194,7 +215,7 @@ impl Detector {
     /// The chain on a training batch: with a second stage, RoIs are sampled from the dense head's
     /// proposals (train limits) against `gt` (one entry per frame, detector frame).
     pub fn forward_train(&self, x: &Inputs, gt: &[FrameGt], rng: &mut ChaCha8Rng) -> Result<Forward> {
-        let NeckOutput { bev, rotation_deg } = self.bev_features(x, true)?;
+        let (NeckOutput { bev, rotation_deg }, voxels) = self.features(x, true)?;
         let dense = self.dense_head.forward_t(&bev, true);
         let roi = match &self.roi_head {
             Some(stage) => {
@@ -207,7 +228,8 @@ impl Detector {
                 }
                 let props = self.proposals(stage.as_ref(), &dense, x.batch_size, true)?;
                 let targets = stage.sample(&props, gt, rng)?.to_device(self.device());
-                let out = stage.forward_t(&bev, &targets.rois, &self.prep.map, true)?;
+                let src = RoiSource { bev: &bev, voxels: voxels.as_deref() };
+                let out = stage.forward_t(&src, &targets.rois, &self.prep.map, true)?;
                 Some(RoiStage { out, targets: Some(targets), proposals: None })
             }
             None => None,
@@ -319,7 +341,10 @@ impl Detector {
     /// rois]` (eval mode); `None` without a second stage.
     pub fn roi_tensors(&self, bev: &Tensor, rois: &Tensor) -> Result<Option<Vec<Tensor>>> {
         match &self.roi_head {
-            Some(stage) => Ok(Some(stage.forward_t(bev, rois, &self.prep.map, false)?.to_tensors())),
+            Some(stage) => {
+                let src = RoiSource { bev, voxels: None };
+                Ok(Some(stage.forward_t(&src, rois, &self.prep.map, false)?.to_tensors()))
+            }
             None => Ok(None),
         }
     }

@@ -2,8 +2,8 @@
 //! AdamW) and then finds each of its boxes — BEV IoU > 0.7 for cars, > 0.5 for pedestrians — with
 //! no false positive above the score threshold. Once with the anchor head, once with the center
 //! head, once through the second stage in a rotated detector frame, and once as SECOND (voxels →
-//! sparse 3-D backbone → height compression) with and without the second stage. Kept small
-//! enough for CI on two cores.
+//! sparse 3-D backbone → height compression) with and without the BEV second stage, and as
+//! Voxel R-CNN (the second stage pooling voxels). Kept small enough for CI on two cores.
 
 use pi3det_data::{Frame, Platform};
 use std::sync::Arc;
@@ -250,6 +250,27 @@ fn second_overfits_one_frame() {
 #[test]
 fn second_iou_overfits_one_frame() {
     let roi = RoiHeadConfig {
+        shared_fc: vec![64],
+        cls_fc: vec![64],
+        reg_fc: vec![64],
+        point_channels: 16,
+        dropout: 0.0,
+        ..Default::default()
+    };
+    overfit_config(HeadConfig::Anchor(AnchorHeadConfig::default()), Some(roi), None, 300, second);
+}
+
+/// Voxel R-CNN: the second stage pools from the sparse backbone's stride-2 and stride-4 voxels.
+#[test]
+fn voxel_rcnn_overfits_one_frame() {
+    let roi = RoiHeadConfig {
+        voxel_pool: Some(pi3det_nn::roi_heads::VoxelRoiPoolConfig {
+            grid_size: 3,
+            stages: vec![
+                pi3det_nn::roi_heads::VoxelPoolStage { stage: 2, radius: 1, max_neighbours: 8, channels: 16 },
+                pi3det_nn::roi_heads::VoxelPoolStage { stage: 3, radius: 1, max_neighbours: 8, channels: 16 },
+            ],
+        }),
         shared_fc: vec![64],
         cls_fc: vec![64],
         reg_fc: vec![64],

@@ -37,7 +37,13 @@ fn presets_build_and_run() {
     // Two Car sizes (sedan/van, bus) and one Pedestrian size, each at 0° and 90°.
     assert_eq!((anchors.h, anchors.w, anchors.per_location), (472, 472, 6));
     assert!(paper.num_parameters() > 4_000_000, "OpenPCDet's PointPillars has 4.8 M parameters");
-    for name in ["pointpillars_cpu.toml", "centerpoint_cpu.toml", "second_cpu.toml", "second_iou_cpu.toml"] {
+    for name in [
+        "pointpillars_cpu.toml",
+        "centerpoint_cpu.toml",
+        "second_cpu.toml",
+        "second_iou_cpu.toml",
+        "voxel_rcnn_cpu.toml",
+    ] {
         let cfg = preset(name);
         let det = Detector::new(&cfg, Device::Cpu).unwrap();
         let s = frame();

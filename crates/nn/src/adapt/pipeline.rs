@@ -587,3 +587,28 @@ pub fn markdown(r: &AdaptReport, cfg: &DetectorConfig) -> String {
     }
     s
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Both Pi3DET-Net presets parse; the Voxel R-CNN one carries every component on the voxel
+    /// detector (sparse backbone, voxel RoI pooling, GTD, PFA, RPJ).
+    #[test]
+    fn adapt_presets_parse() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+        for name in ["pi3det_net_cpu.toml", "pi3det_net_voxel_rcnn_cpu.toml"] {
+            let cfg = AdaptConfig::from_file(&dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let d = &cfg.detector;
+            assert!(d.neck.is_some() && d.pfa.is_some() && d.roi_head.is_some(), "{name}");
+            let voxel = name.contains("voxel");
+            assert_eq!(d.backbone_3d.is_some(), voxel, "{name}");
+            assert_eq!(d.roi_head.as_ref().is_some_and(|r| r.voxel_pool.is_some()), voxel, "{name}");
+            assert!(d
+                .train
+                .augment
+                .iter()
+                .any(|a| matches!(a, crate::augment::AugmentConfig::RandomPlatformJitter(_))));
+        }
+    }
+}

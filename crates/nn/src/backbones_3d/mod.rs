@@ -52,6 +52,13 @@ impl Backbone3dConfig {
         }
     }
 
+    /// Channels of stages 1–4.
+    pub fn stage_channels(&self) -> Vec<i64> {
+        match self {
+            Self::VoxelBackbone8x(c) => c.channels.to_vec(),
+        }
+    }
+
     /// Channels of the BEV map after height compression.
     pub fn bev_channels(&self, input_shape: [i64; 3]) -> i64 {
         match self {

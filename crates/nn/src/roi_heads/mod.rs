@@ -1,6 +1,7 @@
 //! Second stage: a RoI head that refines the dense head's boxes from the BEV feature map (in the
 //! spirit of Voxel R-CNN / CenterPoint's two-stage head, but pooling bilinear samples of the 2D
-//! BEV map instead of 3D voxel features, so that it stays cheap on two CPU cores).
+//! BEV map instead of 3D voxel features, so that it stays cheap on two CPU cores). Voxel
+//! detectors can pool from the voxels instead, as Voxel R-CNN does ([`voxel_roi_pool`]).
 //!
 //! | module | what |
 //! | --- | --- |
@@ -8,6 +9,7 @@
 //! | [`roi_sampler`] | OpenPCDet `ProposalTargetLayer`: class-aware 3D IoU, fg / hard bg / easy bg sampling, IoU-guided score targets |
 //! | [`roi_coder`] | box residuals in each RoI's own frame (encode in Rust, decode on tensors), corner loss |
 //! | [`bev_roi_pool`] | bilinear RoI pooling on the BEV map: `G × G` lattice or centre + 4 face centres |
+//! | [`voxel_roi_pool`] | Voxel R-CNN's voxel RoI pooling: `G³` grid points, voxel query on the sparse backbone's stages |
 //! | [`roi_head`] | the head (point layer, shared MLP, IoU and box branches), its losses and the refinement |
 //!
 //! Training flow (per step, after the dense head): candidates of each frame →
@@ -25,12 +27,14 @@ pub mod proposal;
 pub mod roi_coder;
 pub mod roi_head;
 pub mod roi_sampler;
+pub mod voxel_roi_pool;
 
 pub use bev_roi_pool::{BevRoiPool, BevRoiPoolConfig, PoolLayout};
 pub use proposal::{ProposalBatch, ProposalConfig, Proposals};
 pub use roi_coder::{boxes_to_corners, corner_loss, RoiCoder};
-pub use roi_head::{RoiHead, RoiHeadConfig, RoiLosses, RoiOutput, ScoreFusion, ScoreTarget};
+pub use roi_head::{RoiHead, RoiHeadConfig, RoiLosses, RoiOutput, RoiSource, ScoreFusion, ScoreTarget};
 pub use roi_sampler::{FrameSample, RoiBatchTargets, RoiCategory, RoiSamplerConfig};
+pub use voxel_roi_pool::{StageGeometry, VoxelPoolStage, VoxelRoiPool, VoxelRoiPoolConfig};
 
 use rand_chacha::ChaCha8Rng;
 use tch::Tensor;
@@ -51,7 +55,7 @@ pub trait SecondStage {
     /// frame's ignored boxes ([`FrameGt::ignored`]) are not sampled.
     fn sample(&self, proposals: &[Proposals], gt: &[FrameGt], rng: &mut ChaCha8Rng) -> Result<RoiBatchTargets>;
     /// `bev [B, C, H, W]`, `rois [B, N, 7]` → per-RoI features, score logits and box codes.
-    fn forward_t(&self, bev: &Tensor, rois: &Tensor, map: &CenterMap, train: bool) -> Result<RoiOutput>;
+    fn forward_t(&self, src: &RoiSource, rois: &Tensor, map: &CenterMap, train: bool) -> Result<RoiOutput>;
     /// Adds the stage's named loss terms.
     fn loss(&self, out: &RoiOutput, targets: &RoiBatchTargets, losses: &mut LossTerms) -> Result<()>;
     /// Refined boxes `[B, N, 7]` (detector frame) and final scores `[B, N]`.
@@ -76,8 +80,8 @@ impl SecondStage for RoiHead {
         RoiBatchTargets::collate(&frames)
     }
 
-    fn forward_t(&self, bev: &Tensor, rois: &Tensor, map: &CenterMap, train: bool) -> Result<RoiOutput> {
-        RoiHead::forward_t(self, bev, rois, map, train)
+    fn forward_t(&self, src: &RoiSource, rois: &Tensor, map: &CenterMap, train: bool) -> Result<RoiOutput> {
+        RoiHead::forward_source(self, src, rois, map, train)
     }
 
     fn loss(&self, out: &RoiOutput, targets: &RoiBatchTargets, losses: &mut LossTerms) -> Result<()> {

@@ -21,9 +21,11 @@ use super::bev_roi_pool::{BevRoiPool, BevRoiPoolConfig};
 use super::proposal::ProposalConfig;
 use super::roi_coder::{corner_loss, RoiCoder};
 use super::roi_sampler::{RoiBatchTargets, RoiSamplerConfig};
+use super::voxel_roi_pool::{StageGeometry, VoxelRoiPool, VoxelRoiPoolConfig};
 use crate::box_coder::limit_period_tensor;
 use crate::error::{NnError, Result};
 use crate::losses;
+use crate::sparse::SparseTensor;
 use crate::target_assigner::center::CenterMap;
 use crate::BatchNorm;
 
@@ -55,6 +57,10 @@ pub enum ScoreFusion {
 #[serde(default, deny_unknown_fields)]
 pub struct RoiHeadConfig {
     pub pool: BevRoiPoolConfig,
+    /// Voxel R-CNN: pool from the sparse 3-D backbone's voxels instead of the BEV map (`pool`
+    /// is then unused); needs a `[backbone_3d]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub voxel_pool: Option<VoxelRoiPoolConfig>,
     /// Channels of the per-sample point layer; 0 feeds the raw `C·P` pooled values to the MLP.
     pub point_channels: i64,
     /// Shared MLP; its output is [`RoiOutput::features`].
@@ -83,6 +89,7 @@ impl Default for RoiHeadConfig {
     fn default() -> Self {
         Self {
             pool: BevRoiPoolConfig::default(),
+            voxel_pool: None,
             point_channels: 64,
             shared_fc: vec![256, 256],
             cls_fc: vec![256, 256],
@@ -104,6 +111,9 @@ impl Default for RoiHeadConfig {
 impl RoiHeadConfig {
     pub fn validate(&self) -> Result<()> {
         self.pool.validate()?;
+        if let Some(v) = &self.voxel_pool {
+            v.validate()?;
+        }
         self.sampler.validate()?;
         self.proposal.validate()?;
         if self.point_channels < 0 {
@@ -124,14 +134,32 @@ impl RoiHeadConfig {
         Ok(())
     }
 
-    /// Builds the head for a BEV map of `in_channels` channels.
+    /// Builds the head for a BEV map of `in_channels` channels (and, with `voxel_pool`, a 3-D
+    /// backbone whose stages have `stage_channels`).
     pub fn init(&self, vs: nn::Path, in_channels: i64, bn: &BatchNorm) -> Result<RoiHead> {
+        self.init_with_stages(vs, in_channels, &[], bn)
+    }
+
+    pub fn init_with_stages(
+        &self,
+        vs: nn::Path,
+        bev_channels: i64,
+        stage_channels: &[i64],
+        bn: &BatchNorm,
+    ) -> Result<RoiHead> {
         self.validate()?;
+        let pool = self.pool.init()?;
+        let voxel_pool = match &self.voxel_pool {
+            Some(v) => Some(v.init(&vs / "voxel_pool", stage_channels, bn)?),
+            None => None,
+        };
+        let (in_channels, p) = match &voxel_pool {
+            Some(v) => (v.out_channels(), v.num_points()),
+            None => (bev_channels, pool.num_points()),
+        };
         if in_channels < 1 {
             return Err(NnError::Config("roi head: in_channels must be positive".into()));
         }
-        let pool = self.pool.init()?;
-        let p = pool.num_points();
         let point =
             (self.point_channels > 0).then(|| FcLayer::new(&vs / "point", in_channels, self.point_channels, bn));
         let mut dim = if self.point_channels > 0 { self.point_channels * p } else { in_channels * p };
@@ -174,6 +202,7 @@ impl RoiHeadConfig {
             in_channels,
             feature_dim,
             pool,
+            voxel_pool,
             point,
             shared,
             cls,
@@ -205,6 +234,13 @@ impl FcLayer {
     fn forward_t(&self, x: &Tensor, train: bool) -> Tensor {
         self.bn.forward_t(&self.linear.forward(x), train).relu()
     }
+}
+
+/// What a second stage pools from: the BEV map, and for voxel detectors the 3-D backbone's
+/// stages (stage `s` at index `s − 1`) with their geometry.
+pub struct RoiSource<'a> {
+    pub bev: &'a Tensor,
+    pub voxels: Option<&'a [(SparseTensor, StageGeometry)]>,
 }
 
 /// The head's outputs for `rois [B, N, 7]`.
@@ -254,6 +290,7 @@ pub struct RoiHead {
     in_channels: i64,
     feature_dim: i64,
     pool: BevRoiPool,
+    voxel_pool: Option<VoxelRoiPool>,
     point: Option<FcLayer>,
     shared: Vec<FcLayer>,
     cls: Vec<FcLayer>,
@@ -277,7 +314,24 @@ impl RoiHead {
     /// gradient) → [`RoiOutput`]. Errors on mismatched shapes, and in training on a single RoI
     /// (batch norm needs two rows).
     pub fn forward_t(&self, bev: &Tensor, rois: &Tensor, map: &CenterMap, train: bool) -> Result<RoiOutput> {
-        let pooled = self.pool.forward(bev, rois, map)?; // [B, N, C, P]
+        self.forward_source(&RoiSource { bev, voxels: None }, rois, map, train)
+    }
+
+    /// Whether the head pools from voxels (Voxel R-CNN).
+    pub fn pools_voxels(&self) -> bool {
+        self.voxel_pool.is_some()
+    }
+
+    /// As [`forward_t`](Self::forward_t), pooling from the BEV map or, with a voxel pool, from the
+    /// backbone's stages in `src`.
+    pub fn forward_source(&self, src: &RoiSource, rois: &Tensor, map: &CenterMap, train: bool) -> Result<RoiOutput> {
+        let pooled = match (&self.voxel_pool, src.voxels) {
+            (Some(v), Some(stages)) => v.forward_t(stages, rois, train)?,
+            (Some(_), None) => {
+                return Err(NnError::Input("roi head: a voxel RoI pool needs the 3-D backbone's voxels".into()))
+            }
+            (None, _) => self.pool.forward(src.bev, rois, map)?,
+        }; // [B, N, C, P]
         let (b, n, c, p) = pooled.size4()?;
         if c != self.in_channels {
             return Err(NnError::Input(format!(
