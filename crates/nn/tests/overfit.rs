@@ -208,14 +208,7 @@ fn two_stage_overfits_one_frame_in_a_rotated_detector_frame() {
         nalgebra::Translation3::new(1.5, -2.0, 1.9),
         nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, 0.35),
     );
-    let roi = RoiHeadConfig {
-        shared_fc: vec![64],
-        cls_fc: vec![64],
-        reg_fc: vec![64],
-        point_channels: 16,
-        dropout: 0.0,
-        ..Default::default()
-    };
+    let roi = small_roi();
     overfit_with(HeadConfig::Anchor(AnchorHeadConfig::default()), Some(roi), Some(t), 300);
 }
 
@@ -249,14 +242,7 @@ fn second_overfits_one_frame() {
 /// SECOND-IoU: SECOND with the BEV second stage.
 #[test]
 fn second_iou_overfits_one_frame() {
-    let roi = RoiHeadConfig {
-        shared_fc: vec![64],
-        cls_fc: vec![64],
-        reg_fc: vec![64],
-        point_channels: 16,
-        dropout: 0.0,
-        ..Default::default()
-    };
+    let roi = small_roi();
     overfit_config(HeadConfig::Anchor(AnchorHeadConfig::default()), Some(roi), None, 300, second);
 }
 
@@ -271,12 +257,19 @@ fn voxel_rcnn_overfits_one_frame() {
                 pi3det_nn::roi_heads::VoxelPoolStage { stage: 3, radius: 1, max_neighbours: 8, channels: 16 },
             ],
         }),
+        ..small_roi()
+    };
+    overfit_config(HeadConfig::Anchor(AnchorHeadConfig::default()), Some(roi), None, 300, second);
+}
+
+/// A narrow second stage for these tests.
+fn small_roi() -> RoiHeadConfig {
+    RoiHeadConfig {
         shared_fc: vec![64],
         cls_fc: vec![64],
         reg_fc: vec![64],
         point_channels: 16,
         dropout: 0.0,
         ..Default::default()
-    };
-    overfit_config(HeadConfig::Anchor(AnchorHeadConfig::default()), Some(roi), None, 300, second);
+    }
 }
