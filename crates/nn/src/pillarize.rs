@@ -69,6 +69,8 @@ pub struct Grid {
     pub nx: usize,
     pub ny: usize,
     pub nz: usize,
+    /// Cells are voxels (`voxel_height` set): mean features, hashed, for a sparse backbone.
+    pub voxels: bool,
 }
 
 impl Grid {
@@ -113,12 +115,13 @@ impl Grid {
             nx,
             ny,
             nz,
+            voxels: cfg.voxel_height.is_some(),
         })
     }
 
-    /// Whether cells are voxels (the grid is cut along z).
+    /// Whether cells are voxels (`voxel_height` set).
     pub fn is_voxel(&self) -> bool {
-        self.nz > 1
+        self.voxels
     }
 
     /// Cell of a point, `iz·ny·nx + iy·nx + ix`; `None` outside the range (max bounds exclusive).

@@ -59,6 +59,11 @@ impl VoxelBackbone8xConfig {
         layers(self).0
     }
 
+    /// [`layer_specs`](Self::layer_specs) and the index after each of the four stages' last layer.
+    pub fn stages(&self) -> (Vec<(SparseConv3dConfig, i64)>, [usize; 4]) {
+        layers(self)
+    }
+
     /// The output grid on an input grid of `shape` `[D, H, W]`.
     pub fn output_shape(&self, shape: [i64; 3]) -> [i64; 3] {
         layers(self).0.iter().fold(shape, |s, (c, _)| c.output_shape(s))

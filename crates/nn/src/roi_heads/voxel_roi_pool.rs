@@ -119,14 +119,12 @@ impl StageGeometry {
             b: [0.0; 3],
         };
         let Backbone3dConfig::VoxelBackbone8x(c) = backbone;
-        let specs = c.layer_specs();
+        let (specs, ends) = c.stages();
         let mut out = Vec::new();
         let mut g = base;
-        // Stage ends: after the input layer + blocks[0], then after each stage's layers.
-        let mut at = 0;
-        for (s, &n) in c.blocks.iter().enumerate() {
-            let count = n + 1;
-            for (spec, _) in &specs[at..at + count] {
+        let mut start = 0;
+        for end in ends {
+            for (spec, _) in &specs[start..end] {
                 if spec.kind == crate::sparse::SparseConvKind::Regular {
                     // Sparse order is (z, y, x); geometry is (x, y, z).
                     for (axis, dim) in [(0, 2), (1, 1), (2, 0)] {
@@ -136,8 +134,7 @@ impl StageGeometry {
                     }
                 }
             }
-            at += count;
-            let _ = s;
+            start = end;
             out.push(g);
         }
         out

@@ -154,7 +154,7 @@ impl SparseConv3d {
                         "inverse sparse convolution: no convolution with indice_key {key:?} ran before"
                     ))
                 })?;
-                if fwd.book.out_coords.len() != x.len()
+                if !std::sync::Arc::ptr_eq(&fwd.book.out_coords, &x.coords)
                     || fwd.book.kernel_volume() as i64 != c.kernel.iter().product::<i64>()
                 {
                     return Err(NnError::Input(format!(
