@@ -1,7 +1,7 @@
 //! `pi3det`: perspective-invariant LiDAR 3D object detection (Pi3DET) from the command line.
 //!
 //! This binary does not link libtorch: the detector commands (`train`, `detect`, `adapt`,
-//! `autolabel`, `demo`, `bench nn`) are listed here but run in `pi3det-torch` (crates/pipelines), see [`cmd::torch`].
+//! `autolabel`, `demo`, `benchmark`, `bench nn`) are listed here but run in `pi3det-torch` (crates/pipelines), see [`cmd::torch`].
 
 mod cmd;
 
@@ -55,6 +55,8 @@ enum Command {
     Export(Forwarded),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
     Demo(Forwarded),
+    /// The cross-platform benchmark: methods × detectors × tasks as resumable, shardable cells → the paper's tables.
+    Benchmark(Forwarded),
     /// Benchmarks that print a table.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -90,6 +92,7 @@ fn main() -> std::process::ExitCode {
             | Command::Adapt(_)
             | Command::Autolabel(_)
             | Command::Demo(_)
+            | Command::Benchmark(_)
             | Command::Run(_)
             | Command::Export(_)
             | Command::Bench(BenchCommand::Nn(_) | BenchCommand::Live(_) | BenchCommand::Sparse(_))
@@ -126,6 +129,7 @@ fn main() -> std::process::ExitCode {
         | Command::Adapt(_)
         | Command::Autolabel(_)
         | Command::Demo(_)
+        | Command::Benchmark(_)
         | Command::Run(_)
         | Command::Export(_)
         | Command::Bench(BenchCommand::Nn(_) | BenchCommand::Live(_) | BenchCommand::Sparse(_)) => {

@@ -387,6 +387,15 @@ impl DetectorConfig {
                     )));
                 }
             }
+            if let AugmentConfig::StatisticalNormalization(sn) = a {
+                let unknown: Vec<&String> = sn.size_delta_m.keys().filter(|c| !self.classes.contains(c)).collect();
+                if !unknown.is_empty() {
+                    return Err(NnError::Config(format!(
+                        "statistical_normalization names classes {unknown:?} that are not among the detector's classes {:?}",
+                        self.classes
+                    )));
+                }
+            }
         }
         Ok(())
     }

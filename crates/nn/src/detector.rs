@@ -305,7 +305,7 @@ impl Detector {
             let p = roi.proposals.as_ref().ok_or_else(|| {
                 NnError::Input("post-processing of the second stage needs an inference pass (proposals)".into())
             })?;
-            let (boxes, scores) = stage.refine(&roi.out, &p.rois, &p.roi_scores);
+            let (boxes, scores) = stage.refine(&roi.out, &p.rois, &p.roi_scores, &p.roi_labels);
             let frames = refined_frames(&boxes, &scores, &p.roi_labels, &p.valid);
             return Ok(frames
                 .into_iter()

@@ -20,6 +20,17 @@ pub struct ClassAp {
     pub d3_r40: f64,
     pub num_gt: usize,
     pub num_det: usize,
+    /// The loose set (KITTI's second overlap set: 0.5 for cars, 0.25 for pedestrians), when evaluated.
+    #[serde(default)]
+    pub loose: Option<LooseAp>,
+}
+
+/// BEV / 3D AP_R40 at the loose IoU threshold.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LooseAp {
+    pub iou: f64,
+    pub bev_r40: f64,
+    pub d3_r40: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
@@ -92,6 +103,11 @@ pub fn summarize(report: &EvalReport) -> ApSummary {
                     d3_r40: s.d3.r40[1],
                     num_gt: c.num_gt[1],
                     num_det: c.num_det,
+                    loose: c.sets.get(1).map(|l| LooseAp {
+                        iou: l.min_overlaps[1],
+                        bev_r40: l.bev.r40[1],
+                        d3_r40: l.d3.r40[1],
+                    }),
                 })
             })
             .collect(),

@@ -31,6 +31,7 @@ pub mod adapt;
 pub mod augment;
 pub mod backbone_2d;
 pub mod backbones_3d;
+pub mod baselines;
 pub mod bench;
 pub mod box_coder;
 pub mod checkpoint;

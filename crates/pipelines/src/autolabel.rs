@@ -13,7 +13,7 @@ use pi3det_autolabel::fusion::{fuse, FusionConfig, FusionInput};
 use pi3det_autolabel::quality::{quality, quality_table, Quality};
 use pi3det_autolabel::tracking::{track_dataset, TrackingConfig};
 use pi3det_autolabel::LabelSet;
-use pi3det_data::{DataError, Dataset, FrameInfo, FrameMap, Mapped, Object, PointCloud};
+use pi3det_data::{DataError, Dataset, FrameInfo, FrameMap, Mapped, PointCloud};
 use pi3det_geometry::Box3d;
 use pi3det_nn::cli::{DataArgs, DeviceArgs};
 use pi3det_nn::data_loader::Subset;
@@ -79,7 +79,7 @@ pub struct View {
 }
 
 impl View {
-    fn name(&self) -> String {
+    pub fn name(&self) -> String {
         match (self.flip_y, self.yaw_rad) {
             (false, 0.0) => "none".into(),
             (true, 0.0) => "flip".into(),
@@ -87,21 +87,21 @@ impl View {
         }
     }
 
-    fn apply_xy(self, x: f64, y: f64) -> (f64, f64) {
+    pub fn apply_xy(self, x: f64, y: f64) -> (f64, f64) {
         let y = if self.flip_y { -y } else { y };
         let (s, c) = self.yaw_rad.sin_cos();
         (c * x - s * y, s * x + c * y)
     }
 
     /// A box of the original frame in this view.
-    fn into_view(self, b: &Box3d) -> Box3d {
+    pub fn into_view(self, b: &Box3d) -> Box3d {
         let (x, y) = self.apply_xy(b.x, b.y);
         let h = if self.flip_y { -b.heading } else { b.heading };
         Box3d { x, y, heading: h + self.yaw_rad, ..*b }.with_wrapped_heading()
     }
 
     /// A box detected in this view, back in the original frame.
-    fn out_of_view(self, b: &Box3d) -> Box3d {
+    pub fn out_of_view(self, b: &Box3d) -> Box3d {
         let (s, c) = (-self.yaw_rad).sin_cos();
         let (x, y) = (c * b.x - s * b.y, s * b.x + c * b.y);
         let h = b.heading - self.yaw_rad;
@@ -130,7 +130,7 @@ impl View {
     }
 }
 
-fn views(kinds: &[TtaKind], rot_deg: f64) -> Vec<View> {
+pub fn views(kinds: &[TtaKind], rot_deg: f64) -> Vec<View> {
     let mut v = Vec::new();
     let id = View { flip_y: false, yaw_rad: 0.0 };
     for k in kinds {
@@ -177,6 +177,111 @@ struct Report {
     quality: Vec<(String, Vec<Quality>)>,
 }
 
+/// What [`ensemble`] labels with.
+pub struct EnsembleOptions<'a> {
+    pub subset: &'a Subset,
+    /// `subset`'s infos.
+    pub infos: &'a [FrameInfo],
+    pub checkpoints: &'a [PathBuf],
+    pub views: &'a [View],
+    pub vpp_height: Option<f64>,
+    /// The frames' `shift_z` into the detectors' frame instead of their configs' (without VPP).
+    pub shift_z: Option<f64>,
+    pub fusion: FusionConfig,
+    /// Members a fused cluster needs (default: the config's, at most a third of the inputs, at least 1).
+    pub min_members: Option<usize>,
+    pub tracking: &'a TrackingConfig,
+    pub frame_rate: Option<f64>,
+    pub min_score: f64,
+    pub batch_size: usize,
+    pub device: tch::Device,
+}
+
+/// MS3D++'s labels: every checkpoint × view → kernel-density box fusion → tracking → score filter.
+pub struct Ensemble {
+    pub names: Vec<String>,
+    pub inputs: Vec<FusionInput>,
+    pub min_members: usize,
+    pub fusion: FusionConfig,
+    pub fusion_stats: pi3det_autolabel::fusion::FusionStats,
+    pub fused: LabelSet,
+    pub tracked: pi3det_autolabel::tracking::Tracked,
+    pub final_labels: LabelSet,
+    pub final_ids: std::collections::BTreeMap<String, Vec<u64>>,
+}
+
+/// Detections of `det` on `subset` seen through `view`, mapped back to the frames' own LiDAR frame.
+pub fn detect_in_view(
+    det: &Detector,
+    prep: Preprocessor,
+    subset: &Subset,
+    view: View,
+    batch_size: usize,
+) -> Result<Vec<detect::FrameDetections>> {
+    let ds: Arc<dyn Dataset> = Arc::new(Mapped { inner: subset.dataset.clone(), map: view });
+    let sub = Subset { dataset: ds, indices: subset.indices.clone() };
+    let (mut frames, _) = detect::detect_with(det, Arc::new(prep), &sub, batch_size, &mut |_, _| {})?;
+    for f in &mut frames {
+        f.objects.iter_mut().for_each(|o| o.box3d = view.out_of_view(&o.box3d));
+        f.info = view_back(f.info.clone(), view);
+    }
+    Ok(frames)
+}
+
+/// A view's info with the boxes back in the original frame.
+fn view_back(mut info: FrameInfo, view: View) -> FrameInfo {
+    info.objects.iter_mut().for_each(|o| o.box3d = view.out_of_view(&o.box3d));
+    info
+}
+
+/// Runs the ensemble; `on_input` sees each checkpoint × view's labels as they are made.
+pub fn ensemble(o: &EnsembleOptions<'_>, on_input: &mut dyn FnMut(&str, &LabelSet) -> Result<()>) -> Result<Ensemble> {
+    let mut inputs = Vec::new();
+    let mut names = Vec::new();
+    for (k, ckpt) in o.checkpoints.iter().enumerate() {
+        let ck = checkpoint::load(ckpt)?;
+        let mut det = Detector::new(&ck.config, o.device)?;
+        ck.load_into(&mut det, ckpt)?;
+        for view in o.views {
+            // A fresh preprocessor per view: VPP caches its transform per point file.
+            let mut cfg = ck.config.clone();
+            if let Some(z) = o.shift_z {
+                cfg.shift_z = z;
+            }
+            let mut prep = Preprocessor::new(&cfg)?;
+            if let Some(h) = o.vpp_height {
+                prep = prep.with_frame_transform(pi3det_nn::cli::detect::vpp(&ck.config, h)?);
+            }
+            let frames = detect_in_view(&det, prep, o.subset, *view, o.batch_size)?;
+            let mut labels = LabelSet::default();
+            for f in frames {
+                labels.frames.insert(f.info.id, f.objects);
+            }
+            let name = format!("{k}_{}", view.name());
+            on_input(&name, &labels)?;
+            names.push(format!("{} {}", ckpt.display(), view.name()));
+            inputs.push(FusionInput { labels, class_weights: vec![1.0; o.fusion.classes.len()] });
+        }
+    }
+    let min_members = o.min_members.unwrap_or_else(|| {
+        let configured = o.fusion.classes.iter().map(|c| c.min_members).max().unwrap_or(1);
+        configured.min(inputs.len() / 3).max(1)
+    });
+    let mut fusion = o.fusion.clone();
+    fusion.classes.iter_mut().for_each(|c| c.min_members = min_members);
+    let (fused, fusion_stats) = fuse(&inputs, &fusion)?;
+    let tracked = track_dataset(o.infos, &fused, o.tracking, o.frame_rate)?;
+    let mut final_labels = LabelSet::default();
+    let mut final_ids = std::collections::BTreeMap::new();
+    for (id, objects) in &tracked.labels.frames {
+        let ids = &tracked.track_ids[id];
+        let keep: Vec<usize> = (0..objects.len()).filter(|&i| objects[i].score.unwrap_or(1.0) >= o.min_score).collect();
+        final_labels.frames.insert(id.clone(), keep.iter().map(|&i| objects[i].clone()).collect());
+        final_ids.insert(id.clone(), keep.iter().map(|&i| ids[i]).collect::<Vec<_>>());
+    }
+    Ok(Ensemble { names, inputs, min_members, fusion, fusion_stats, fused, tracked, final_labels, final_ids })
+}
+
 pub fn run_autolabel(args: &AutolabelArgs) -> Result<()> {
     if !args.tta_rot_deg.is_finite() || !args.min_score.is_finite() {
         bail!("--tta-rot-deg and --min-score must be finite numbers");
@@ -202,54 +307,33 @@ pub fn run_autolabel(args: &AutolabelArgs) -> Result<()> {
     let infos = subset.infos()?;
     std::fs::create_dir_all(args.out.join("detections")).with_context(|| format!("creating {}", args.out.display()))?;
     let views = views(&args.tta, args.tta_rot_deg);
-    let mut inputs = Vec::new();
-    let mut names = Vec::new();
-    for (k, ckpt) in args.ckpt.iter().enumerate() {
-        let ck = checkpoint::load(ckpt)?;
-        let mut det = Detector::new(&ck.config, device)?;
-        ck.load_into(&mut det, ckpt)?;
-        for view in &views {
-            // A fresh preprocessor per view: VPP caches its transform per point file.
-            let mut prep = Preprocessor::new(&ck.config)?;
-            if let Some(h) = args.vpp_height {
-                prep = prep.with_frame_transform(pi3det_nn::cli::detect::vpp(&ck.config, h)?);
-            }
-            let ds: Arc<dyn Dataset> = Arc::new(Mapped { inner: subset.dataset.clone(), map: *view });
-            let sub = Subset { dataset: ds, indices: subset.indices.clone() };
-            let (frames, _) = detect::detect_with(&det, Arc::new(prep), &sub, args.batch_size, &mut |_, _| {})?;
-            let mut labels = LabelSet::default();
-            for f in frames {
-                let objects: Vec<Object> =
-                    f.objects.into_iter().map(|o| Object { box3d: view.out_of_view(&o.box3d), ..o }).collect();
-                labels.frames.insert(f.info.id, objects);
-            }
-            let name = format!("{k}_{}", view.name());
-            labels.write_jsonl(&args.out.join("detections").join(format!("{name}.jsonl")), None, true)?;
-            labels.source = args.out.join("detections").join(format!("{name}.jsonl"));
-            eprintln!("{} ({}): {} detections", ckpt.display(), view.name(), labels.num_boxes());
-            names.push(format!("{} {}", ckpt.display(), view.name()));
-            inputs.push(FusionInput { labels, class_weights: vec![1.0; fusion_cfg.classes.len()] });
-        }
-    }
-    let min_members = args.min_members.unwrap_or_else(|| {
-        let configured = fusion_cfg.classes.iter().map(|c| c.min_members).max().unwrap_or(1);
-        configured.min(inputs.len() / 3).max(1)
-    });
-    let mut fusion_cfg = fusion_cfg;
-    fusion_cfg.classes.iter_mut().for_each(|c| c.min_members = min_members);
-    let (fused, fusion_stats) = fuse(&inputs, &fusion_cfg)?;
+    let e = ensemble(
+        &EnsembleOptions {
+            subset: &subset,
+            infos: &infos,
+            checkpoints: &args.ckpt,
+            views: &views,
+            vpp_height: args.vpp_height,
+            shift_z: None,
+            fusion: fusion_cfg.clone(),
+            min_members: args.min_members,
+            tracking: &tracking_cfg,
+            frame_rate: args.frame_rate,
+            min_score: args.min_score,
+            batch_size: args.batch_size,
+            device,
+        },
+        &mut |name, labels| {
+            let path = args.out.join("detections").join(format!("{name}.jsonl"));
+            eprintln!("{name}: {} detections", labels.num_boxes());
+            labels.write_jsonl(&path, None, true).map_err(anyhow::Error::from)
+        },
+    )?;
+    let (names, inputs, min_members, fusion_stats, fused, tracked, final_labels, final_ids) =
+        (e.names, e.inputs, e.min_members, e.fusion_stats, e.fused, e.tracked, e.final_labels, e.final_ids);
+    let fusion_cfg = e.fusion;
     fused.write_jsonl(&args.out.join("fused.jsonl"), None, true)?;
-    let tracked = track_dataset(&infos, &fused, &tracking_cfg, args.frame_rate)?;
     tracked.labels.write_jsonl(&args.out.join("tracked.jsonl"), Some(&tracked.track_ids), true)?;
-    let mut final_labels = LabelSet::default();
-    let mut final_ids = std::collections::BTreeMap::new();
-    for (id, objects) in &tracked.labels.frames {
-        let ids = &tracked.track_ids[id];
-        let keep: Vec<usize> =
-            (0..objects.len()).filter(|&i| objects[i].score.unwrap_or(1.0) >= args.min_score).collect();
-        final_labels.frames.insert(id.clone(), keep.iter().map(|&i| objects[i].clone()).collect());
-        final_ids.insert(id.clone(), keep.iter().map(|&i| ids[i]).collect::<Vec<_>>());
-    }
     final_labels.write_jsonl(&args.out.join("labels.jsonl"), Some(&final_ids), true)?;
     // The label set: the data's frames with the final boxes, over the original point files.
     let labelled: Vec<FrameInfo> = infos

@@ -614,6 +614,7 @@ mod tests {
             d3_r40: bev / 2.0,
             num_gt,
             num_det: 3,
+            loose: None,
         };
         let row = |platform: &str, peds| DemoRow {
             platform: platform.into(),

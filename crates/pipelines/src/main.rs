@@ -1,4 +1,4 @@
-//! `pi3det-torch`: the detector commands of `pi3det` (`train`, `detect`, `adapt`, `autolabel`, `demo`,
+//! `pi3det-torch`: the detector commands of `pi3det` (`train`, `detect`, `adapt`, `autolabel`, `demo`, `benchmark`,
 //! `bench nn`), the
 //! part that links libtorch. `pi3det` hands these commands over with their arguments verbatim, so
 //! `pi3det train --help` is this binary's help; it can also be run directly.
@@ -38,6 +38,8 @@ enum Command {
     Export(pi3det_pipelines::export::ExportArgs),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
     Demo(pi3det_pipelines::demo::DemoArgs),
+    /// The cross-platform benchmark: methods × detectors × tasks as resumable, shardable cells → the paper's tables.
+    Benchmark(pi3det_pipelines::benchmark::BenchmarkArgs),
     /// Benchmarks that print a table.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -73,6 +75,7 @@ fn main() -> std::process::ExitCode {
         Command::Run(args) => pi3det_pipelines::run::run(args),
         Command::Export(args) => pi3det_pipelines::export::run(args),
         Command::Demo(args) => pi3det_pipelines::demo::run_demo(args).map(|_| ()),
+        Command::Benchmark(args) => pi3det_pipelines::benchmark::run(args).map(|_| ()),
         Command::Bench(BenchCommand::Live(args)) => pi3det_pipelines::bench_live::run(args),
         Command::Bench(BenchCommand::Nn(args)) => nn::run_bench_nn(args, &mut |n| {
             pi3det_pipelines::frames::vehicle_frames(n).map_err(|e| NnError::Input(format!("simulation: {e}")))

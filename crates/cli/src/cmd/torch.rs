@@ -42,7 +42,7 @@ pub fn is_help_for_forwarded(args: &[OsString]) -> bool {
     }
     matches!(
         words.as_slice(),
-        ["help", "train" | "detect" | "adapt" | "autolabel" | "demo" | "run" | "export", ..]
+        ["help", "train" | "detect" | "adapt" | "autolabel" | "demo" | "benchmark" | "run" | "export", ..]
             | ["help", "bench", "nn" | "live" | "sparse"]
     )
 }

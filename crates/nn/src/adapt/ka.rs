@@ -119,13 +119,18 @@ impl KnowledgeAdaptation {
         )
     }
 
-    /// One epoch over `target` with batches of `source` alongside; returns the mean loss.
+    /// One epoch over `target` with batches of `source` alongside (none: target batches only,
+    /// as ST3D self-trains); returns the mean loss. With `norms`, each domain's batches run on
+    /// its own batch-norm statistics (ST3D++'s DSNorm) and the target's are left in the network;
+    /// PFA's KL term, which couples the two passes, is then not computed.
+    #[allow(clippy::too_many_arguments)]
     pub fn epoch(
         &mut self,
         det: &Detector,
         epoch: usize,
-        source: &DomainData,
+        source: Option<&DomainData>,
         target: &DomainData,
+        mut norms: Option<&mut crate::baselines::DomainNorms>,
         device: Device,
         on_step: &mut dyn FnMut(&KaStep),
     ) -> Result<f64> {
@@ -135,38 +140,67 @@ impl KnowledgeAdaptation {
         // every KA epoch, so an epoch depends on nothing but its number.
         let source_pass = |k: u64| 1_000_000 + 1_000 * epoch as u64 + k;
         let mut passes = 0;
-        let mut src = self.loader(source, source_pass(passes));
+        let mut src = source.map(|s| self.loader(s, source_pass(passes)));
         let tgt = self.loader(target, 2_000_000 + epoch as u64);
         let (mut sum, mut n) = (0.0, 0usize);
         for (bi, tb) in tgt.enumerate() {
             let tb = tb?;
-            let sb = match src.next() {
-                Some(b) => b?,
-                None => {
-                    passes += 1;
-                    src = self.loader(source, source_pass(passes));
-                    src.next().ok_or_else(|| NnError::Loader("the source set gave no batch".into()))??
-                }
+            let sb = match (&mut src, source) {
+                (Some(l), Some(s)) => Some(match l.next() {
+                    Some(b) => b?,
+                    None => {
+                        passes += 1;
+                        *l = self.loader(s, source_pass(passes));
+                        l.next().ok_or_else(|| NnError::Loader("the source set gave no batch".into()))??
+                    }
+                }),
+                _ => None,
             };
-            if sb.num_pillars < 2 || tb.num_pillars < 2 {
+            if sb.as_ref().is_some_and(|b| b.num_pillars < 2) || tb.num_pillars < 2 {
                 tracing::warn!("KA: skipping a step with a batch of (almost) no pillars");
                 continue;
             }
             let t0 = Instant::now();
             let (lr, beta1) = self.schedule.at(self.optim.step as usize);
             let mut rng = ChaCha8Rng::seed_from_u64(frame_seed(seed, epoch as u64, self.optim.step as u64 ^ 0x6b61));
-            let (ls, zs) = domain_pass(det, &sb, Domain::Source, device, &mut rng)?;
+            self.optim.zero_grad();
+            // With per-domain statistics, each domain's pass is differentiated before the other's
+            // statistics are swapped in: batch norm's backward checks the buffers it saw are
+            // unchanged. The gradients add up to those of the summed loss.
+            let split_backward = norms.is_some();
+            let (ls, zs) = match &sb {
+                Some(sb) => {
+                    if let Some(nm) = norms.as_deref_mut() {
+                        nm.enter(Domain::Source);
+                    }
+                    let (l, z) = domain_pass(det, sb, Domain::Source, device, &mut rng)?;
+                    if split_backward {
+                        l.backward();
+                    }
+                    (Some(l), z)
+                }
+                None => (None, None),
+            };
+            if let Some(nm) = norms.as_deref_mut() {
+                nm.enter(Domain::Target);
+            }
             let (lt, zt) = domain_pass(det, &tb, Domain::Target, device, &mut rng)?;
             let kl = match (zs, zt) {
-                (Some(s), Some(t)) => det.kl_loss(&s, &t),
+                (Some(s), Some(t)) if !split_backward => det.kl_loss(&s, &t),
                 _ => None,
             };
-            let total = match &kl {
-                Some(k) => &ls + &lt + k,
-                None => &ls + &lt,
+            let mut total = match &ls {
+                Some(ls) if !split_backward => ls + &lt,
+                _ => lt.shallow_clone(),
             };
-            self.optim.zero_grad();
+            if let Some(k) = &kl {
+                total = &total + k;
+            }
             total.backward();
+            let total = match &ls {
+                Some(ls) if split_backward => ls.detach() + total.detach(),
+                _ => total,
+            };
             let grad_norm = self.optim.clip_grad_norm(self.train.grad_clip);
             let loss = total.double_value(&[]);
             if !loss.is_finite() || !grad_norm.is_finite() {
@@ -183,7 +217,7 @@ impl KnowledgeAdaptation {
                 total_steps: self.total_steps,
                 lr,
                 loss,
-                source: ls.double_value(&[]),
+                source: ls.as_ref().map_or(0.0, |l| l.double_value(&[])),
                 target: lt.double_value(&[]),
                 kl: kl.map_or(0.0, |k| k.double_value(&[])),
                 grad_norm,

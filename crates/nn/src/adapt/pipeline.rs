@@ -276,7 +276,7 @@ fn latest_checkpoint(dir: &Path) -> Option<PathBuf> {
 }
 
 /// AP on `val`; the detections go to `out` (JSON lines, for `pi3det eval --breakdown`).
-fn evaluate(det: &Detector, prep: Arc<Preprocessor>, val: &Subset, out: &Path) -> Result<ApSummary> {
+pub fn evaluate(det: &Detector, prep: Arc<Preprocessor>, val: &Subset, out: &Path) -> Result<ApSummary> {
     let (frames, _) = detect::detect_with(det, prep, val, 4, &mut |_, _| {})?;
     detect::write_jsonl(out, &frames)?;
     let r = det.cfg().pillars.point_cloud_range;
@@ -504,7 +504,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         }
         let t = Instant::now();
         let mean_loss =
-            ka.epoch(&det, epoch, &source, &target, opts.device, &mut |s| on_event(AdaptEvent::KaStep(s)))?;
+            ka.epoch(&det, epoch, Some(&source), &target, None, opts.device, &mut |s| on_event(AdaptEvent::KaStep(s)))?;
         on_event(AdaptEvent::KaEpoch { epoch, mean_loss, seconds: t.elapsed().as_secs_f64() });
         let state = TrainState {
             epoch: epoch + 1,
@@ -592,12 +592,12 @@ pub fn markdown(r: &AdaptReport, cfg: &DetectorConfig) -> String {
 mod tests {
     use super::*;
 
-    /// Both Pi3DET-Net presets parse; the Voxel R-CNN one carries every component on the voxel
+    /// The Pi3DET-Net presets parse; the Voxel R-CNN one carries every component on the voxel
     /// detector (sparse backbone, voxel RoI pooling, GTD, PFA, RPJ).
     #[test]
     fn adapt_presets_parse() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
-        for name in ["pi3det_net_cpu.toml", "pi3det_net_voxel_rcnn_cpu.toml"] {
+        for name in ["pi3det_net_cpu.toml", "pi3det_net_paper.toml", "pi3det_net_voxel_rcnn_cpu.toml"] {
             let cfg = AdaptConfig::from_file(&dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
             let d = &cfg.detector;
             assert!(d.neck.is_some() && d.pfa.is_some() && d.roi_head.is_some(), "{name}");

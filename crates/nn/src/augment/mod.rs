@@ -5,7 +5,9 @@
 
 pub mod gt_sampling;
 pub mod random_object_rotation;
+pub mod random_object_scaling;
 pub mod random_platform_jitter;
+pub mod statistical_normalization;
 pub mod world_flip;
 pub mod world_rotation;
 pub mod world_scaling;
@@ -18,7 +20,9 @@ use serde::{Deserialize, Serialize};
 
 pub use gt_sampling::{GtDatabase, GtSampling, GtSamplingConfig};
 pub use random_object_rotation::{RandomObjectRotation, RandomObjectRotationConfig};
+pub use random_object_scaling::{RandomObjectScaling, RandomObjectScalingConfig};
 pub use random_platform_jitter::{RandomPlatformJitter, RandomPlatformJitterConfig};
+pub use statistical_normalization::{StatisticalNormalization, StatisticalNormalizationConfig};
 pub use world_flip::{WorldFlip, WorldFlipConfig};
 pub use world_rotation::{WorldRotation, WorldRotationConfig};
 pub use world_scaling::{WorldScaling, WorldScalingConfig};
@@ -71,6 +75,8 @@ pub enum AugmentConfig {
     WorldRotation(WorldRotationConfig),
     WorldScaling(WorldScalingConfig),
     RandomPlatformJitter(RandomPlatformJitterConfig),
+    RandomObjectScaling(RandomObjectScalingConfig),
+    StatisticalNormalization(StatisticalNormalizationConfig),
 }
 
 impl AugmentConfig {
@@ -82,6 +88,8 @@ impl AugmentConfig {
             Self::WorldRotation(_) => "world_rotation",
             Self::WorldScaling(_) => "world_scaling",
             Self::RandomPlatformJitter(_) => "random_platform_jitter",
+            Self::RandomObjectScaling(_) => "random_object_scaling",
+            Self::StatisticalNormalization(_) => "statistical_normalization",
         }
     }
 
@@ -99,6 +107,8 @@ impl AugmentConfig {
             Self::WorldRotation(c) => range_ok(&c.range_rad),
             Self::WorldScaling(c) => range_ok(&c.range) && c.range[0] > 0.0,
             Self::RandomPlatformJitter(c) => c.max_deg.is_finite() && (0.0..90.0).contains(&c.max_deg),
+            Self::RandomObjectScaling(c) => range_ok(&c.range) && c.range[0] > 0.0 && c.max_tries > 0,
+            Self::StatisticalNormalization(c) => c.is_valid(),
         };
         if ok {
             Ok(())
@@ -120,6 +130,8 @@ impl AugmentConfig {
             Self::WorldRotation(c) => Box::new(WorldRotation(c.clone())),
             Self::WorldScaling(c) => Box::new(WorldScaling(c.clone())),
             Self::RandomPlatformJitter(c) => Box::new(RandomPlatformJitter(c.clone())),
+            Self::RandomObjectScaling(c) => Box::new(RandomObjectScaling(c.clone())),
+            Self::StatisticalNormalization(c) => Box::new(StatisticalNormalization::new(c, class_names)),
         })
     }
 }

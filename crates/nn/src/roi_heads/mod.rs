@@ -59,7 +59,7 @@ pub trait SecondStage {
     /// Adds the stage's named loss terms.
     fn loss(&self, out: &RoiOutput, targets: &RoiBatchTargets, losses: &mut LossTerms) -> Result<()>;
     /// Refined boxes `[B, N, 7]` (detector frame) and final scores `[B, N]`.
-    fn refine(&self, out: &RoiOutput, rois: &Tensor, roi_scores: &Tensor) -> (Tensor, Tensor);
+    fn refine(&self, out: &RoiOutput, rois: &Tensor, roi_scores: &Tensor, roi_labels: &Tensor) -> (Tensor, Tensor);
 }
 
 impl SecondStage for RoiHead {
@@ -92,7 +92,7 @@ impl SecondStage for RoiHead {
         Ok(())
     }
 
-    fn refine(&self, out: &RoiOutput, rois: &Tensor, roi_scores: &Tensor) -> (Tensor, Tensor) {
-        RoiHead::refine(self, out, rois, roi_scores)
+    fn refine(&self, out: &RoiOutput, rois: &Tensor, roi_scores: &Tensor, roi_labels: &Tensor) -> (Tensor, Tensor) {
+        RoiHead::refine(self, out, rois, roi_scores, roi_labels)
     }
 }

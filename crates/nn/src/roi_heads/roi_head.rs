@@ -51,6 +51,9 @@ pub enum ScoreFusion {
     Product,
     /// `q` (Voxel R-CNN).
     IouOnly,
+    /// ST3D++'s hybrid criterion `w·q + (1 − w)·s` with the class's `w` from
+    /// [`RoiHeadConfig::hybrid_iou_weights`] ([`crate::baselines::hybrid_score`]).
+    Hybrid,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -78,6 +81,9 @@ pub struct RoiHeadConfig {
     pub reg_beta: f64,
     pub code_weights: [f64; 7],
     pub score_fusion: ScoreFusion,
+    /// Per class (the detector's order), the IoU weight of [`ScoreFusion::Hybrid`]; classes
+    /// past the end take 0.5 (ST3D++: car 0.8, pedestrian 0.5).
+    pub hybrid_iou_weights: Vec<f64>,
     pub sampler: RoiSamplerConfig,
     pub proposal: ProposalConfig,
 }
@@ -102,6 +108,7 @@ impl Default for RoiHeadConfig {
             reg_beta: 1.0 / 9.0,
             code_weights: [1.0; 7],
             score_fusion: ScoreFusion::GeometricMean,
+            hybrid_iou_weights: vec![0.8, 0.5],
             sampler: RoiSamplerConfig::default(),
             proposal: ProposalConfig::default(),
         }
@@ -411,8 +418,8 @@ impl RoiHead {
 
     /// Refined boxes `[B, N, 7]` in the detector's frame (heading wrapped to `[−π, π)`) and fused
     /// scores `[B, N]` (see [`ScoreFusion`]) from `out` on `rois [B, N, 7]` with first-stage
-    /// `roi_scores [B, N]`.
-    pub fn refine(&self, out: &RoiOutput, rois: &Tensor, roi_scores: &Tensor) -> (Tensor, Tensor) {
+    /// `roi_scores [B, N]` and classes `roi_labels [B, N]` (0-based).
+    pub fn refine(&self, out: &RoiOutput, rois: &Tensor, roi_scores: &Tensor, roi_labels: &Tensor) -> (Tensor, Tensor) {
         let boxes = RoiCoder::decode_tensor(&out.box_codes, &rois.to_kind(out.box_codes.kind()));
         let heading = limit_period_tensor(&boxes.narrow(-1, 6, 1), 0.5, std::f64::consts::TAU);
         let boxes = Tensor::cat(&[boxes.narrow(-1, 0, 6), heading], -1);
@@ -422,6 +429,14 @@ impl RoiHead {
             ScoreFusion::GeometricMean => (s * &q).sqrt(),
             ScoreFusion::Product => s * &q,
             ScoreFusion::IouOnly => q,
+            ScoreFusion::Hybrid => {
+                let w = &self.cfg.hybrid_iou_weights;
+                let table: Vec<f32> = w.iter().map(|&x| x as f32).chain(std::iter::once(0.5)).collect();
+                let table = Tensor::from_slice(&table).to_device(q.device()).to_kind(q.kind());
+                let idx = roi_labels.to_kind(tch::Kind::Int64).clamp(0, w.len() as i64);
+                let wq = table.index_select(0, &idx.reshape([-1])).view_as(&q);
+                &wq * &q + (1.0 - &wq) * s
+            }
         };
         (boxes, scores)
     }
@@ -607,7 +622,8 @@ mod tests {
         let _guard = tch::no_grad_guard();
         let out = head.forward_t(&bev, &batch.rois, &map, false).unwrap();
         assert_eq!(out.features.size(), [1, pool.len() as i64, 128]);
-        let (boxes, scores) = head.refine(&out, &batch.rois, &batch.roi_scores);
+        let (boxes, scores) =
+            head.refine(&out, &batch.rois, &batch.roi_scores, &batch.roi_scores.zeros_like().to_kind(Kind::Int64));
         let frames = refined_frames(&boxes, &scores, &batch.roi_labels, &batch.valid);
         assert_eq!(frames[0].len(), pool.len());
         let refined: Vec<f64> = Vec::try_from(boxes.to_kind(Kind::Double).reshape([-1])).unwrap();
@@ -685,6 +701,8 @@ mod tests {
                 (ScoreFusion::GeometricMean, 0.5f64.sqrt() * 0.5),
                 (ScoreFusion::Product, 0.125),
                 (ScoreFusion::IouOnly, 0.5),
+                // Class 0 at the default IoU weight 0.8: 0.8·0.5 + 0.2·0.25.
+                (ScoreFusion::Hybrid, 0.45),
             ] {
                 let mut h = cfg.clone();
                 h.score_fusion = fusion;
@@ -695,7 +713,12 @@ mod tests {
                     box_codes: Tensor::zeros([1, 1, 7], (Kind::Float, Device::Cpu)),
                     rois: t.rois.narrow(1, 0, 1).narrow(0, 0, 1),
                 };
-                let (b, s) = head.refine(&o, &o.rois, &Tensor::from_slice(&[0.25f32]).view([1, 1]));
+                let (b, s) = head.refine(
+                    &o,
+                    &o.rois,
+                    &Tensor::from_slice(&[0.25f32]).view([1, 1]),
+                    &Tensor::zeros([1, 1], (Kind::Int64, Device::Cpu)),
+                );
                 assert!((s.double_value(&[0, 0]) - want).abs() < 1e-6, "{fusion:?}");
                 assert!(bool::try_from((b - &o.rois).abs().max().lt(1e-5)).unwrap(), "zero codes keep the RoI");
             }
