@@ -131,3 +131,18 @@ fn shipped_suites_parse() {
     assert_eq!((paper.tasks.len(), paper.methods.len()), (8, 11));
     assert_eq!(paper.cells().len(), 88);
 }
+
+/// Two runs sharing an output folder never run one cell at once: the second leaves a cell whose
+/// lock the first holds.
+#[test]
+fn a_cell_locked_by_another_run_is_left_to_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let suite = write_suite(dir.path(), &["source_only"], 1);
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(out.join("cells")).unwrap();
+    let held = std::fs::File::create(out.join("cells/v2q__source_only__tiny.lock")).unwrap();
+    held.lock().unwrap();
+    let results = benchmark::run(&args(&suite, &out)).unwrap();
+    assert!(results.is_empty(), "{results:?}");
+    assert!(!out.join("cells/v2q__source_only__tiny").exists());
+}

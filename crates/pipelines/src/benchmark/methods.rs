@@ -182,7 +182,6 @@ impl Ctx<'_> {
             let train = concat(&train_sets);
             log.line(format!("training {what} ({} frames, {} epochs)", train.len(), cfg.train.epochs));
             let t = std::time::Instant::now();
-            let mut lines = Vec::new();
             train::train(
                 train::TrainOptions {
                     config: cfg.clone(),
@@ -196,13 +195,10 @@ impl Ctx<'_> {
                 },
                 &mut |e| {
                     if let train::Event::EpochEnd { epoch, mean_loss, seconds, .. } = e {
-                        lines.push(format!("  {what} epoch {} loss {mean_loss:.3} ({seconds:.0} s)", epoch + 1));
+                        log.line(format!("  {what} epoch {} loss {mean_loss:.3} ({seconds:.0} s)", epoch + 1));
                     }
                 },
             )?;
-            for l in lines {
-                log.line(l);
-            }
             log.line(format!("trained {what} in {:.0} s", t.elapsed().as_secs_f64()));
             Ok(())
         })?;

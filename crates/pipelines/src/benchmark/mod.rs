@@ -4,7 +4,8 @@
 //! `OUT/cells/<task>__<method>__<detector>/` ([`methods`]) and leaves `cell.json` (everything it
 //! depends on), `result.json` and `log.txt`. A cell whose `result.json` is done with the same
 //! `cell.json` is skipped, so an interrupted run resumes; a failing cell is recorded as failed
-//! with its log and the others go on. `--only` runs a subset, `--shard i/N` a deterministic share,
+//! with its log and the others go on; a cell another process is running in the same folder (its
+//! lock file held) is left to it. `--only` runs a subset, `--shard i/N` a deterministic share,
 //! `--merge DIR…` combines the cell folders of several machines; every run ends by writing the
 //! tables ([`table`]): `benchmark.md`, `benchmark.csv`, `benchmark.json`, `gap_closed.png`.
 //!
@@ -116,11 +117,26 @@ pub fn select(s: &Suite, only: &[String], shard: Option<Shard>) -> Result<Vec<Ce
     })
 }
 
-/// Runs one cell in its folder; failures (errors and panics) become a failed result.
-fn run_one(ctx: &Ctx<'_>, cell: &Cell, key: &str) -> Result<CellResult> {
+/// Runs one cell in its folder; failures (errors and panics) become a failed result. `None`
+/// when another process is running the cell in the same output folder (its lock is held).
+fn run_one(ctx: &Ctx<'_>, cell: &Cell, key: &str) -> Result<Option<CellResult>> {
     let s = ctx.suite;
     let id = s.cell_id(cell);
-    let dir = ctx.out.join("cells").join(cell_dir_name(&id));
+    let cells = ctx.out.join("cells");
+    std::fs::create_dir_all(&cells).with_context(|| format!("creating {}", cells.display()))?;
+    let lock_path = cells.join(format!("{}.lock", cell_dir_name(&id)));
+    let lock = std::fs::File::create(&lock_path).with_context(|| format!("creating {}", lock_path.display()))?;
+    match lock.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
+            eprintln!("[{id}] another process is running this cell in {}: left to it", ctx.out.display());
+            return Ok(None);
+        }
+        Err(std::fs::TryLockError::Error(e)) => {
+            return Err(e).with_context(|| format!("locking {}", lock_path.display()))
+        }
+    }
+    let dir = cells.join(cell_dir_name(&id));
     if dir.exists() {
         std::fs::remove_dir_all(&dir).with_context(|| format!("clearing {}", dir.display()))?;
     }
@@ -161,7 +177,8 @@ fn run_one(ctx: &Ctx<'_>, cell: &Cell, key: &str) -> Result<CellResult> {
         seconds,
     };
     pi3det_data::io::write_atomic(&dir.join("result.json"), &serde_json::to_vec_pretty(&r)?, true)?;
-    Ok(r)
+    drop(lock);
+    Ok(Some(r))
 }
 
 /// The results of the suite's cells found under `out/cells` (with the suite's current config).
@@ -270,7 +287,10 @@ pub fn run(args: &BenchmarkArgs) -> Result<Vec<CellResult>> {
             skipped += 1;
             continue;
         }
-        let r = run_one(&ctx, c, &key)?;
+        let Some(r) = run_one(&ctx, c, &key)? else {
+            skipped += 1;
+            continue;
+        };
         ran += 1;
         if r.status == Status::Failed {
             failed += 1;
