@@ -222,15 +222,18 @@ struct Concat {
 }
 
 impl Concat {
-    fn locate(&self, mut i: usize) -> (&Subset, usize) {
+    /// The part holding frame `i` of the concatenation and the frame's index in its dataset.
+    fn locate(&self, mut i: usize) -> std::result::Result<(&Subset, usize), pi3det_data::DataError> {
         for p in &self.parts {
             if i < p.len() {
-                return (p, p.indices[i]);
+                return Ok((p, p.indices[i]));
             }
             i -= p.len();
         }
-        let last = self.parts.last().expect("a concatenation of at least one subset");
-        (last, last.indices[last.len() - 1])
+        Err(pi3det_data::DataError::invalid(
+            &self.root,
+            format!("frame {i} past the end of a concatenation of {} frames", self.len()),
+        ))
     }
 }
 
@@ -245,11 +248,11 @@ impl Dataset for Concat {
         self.parts.iter().map(Subset::len).sum()
     }
     fn info(&self, index: usize) -> std::result::Result<FrameInfo, pi3det_data::DataError> {
-        let (p, i) = self.locate(index);
+        let (p, i) = self.locate(index)?;
         p.dataset.info(i)
     }
     fn load(&self, index: usize) -> std::result::Result<pi3det_data::Frame, pi3det_data::DataError> {
-        let (p, i) = self.locate(index);
+        let (p, i) = self.locate(index)?;
         p.dataset.load(i)
     }
 }
