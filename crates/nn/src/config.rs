@@ -351,6 +351,11 @@ impl DetectorConfig {
                     "roi_head.voxel_pool pools voxels: it needs a [backbone_3d] (a voxel detector)".into(),
                 ));
             }
+            if r.point_pool.is_some() && self.pillars.voxel_height.is_some() {
+                return Err(NnError::Config(
+                    "roi_head.point_pool reads pillars: it does not work on a voxel grid (voxel_height)".into(),
+                ));
+            }
         }
         if let Some(n) = &self.neck {
             n.validate()?;
@@ -461,6 +466,9 @@ mod tests {
         let coarse = "[pillars]\nvoxel_height = 0.5\n[backbone_3d]\ntype = \"voxel_backbone_8x\"";
         assert!(err(coarse).contains("25 voxels"));
         assert!(err("[roi_head.voxel_pool]\ngrid_size = 4").contains("backbone_3d"));
+        let voxel_points = format!("{}\n[roi_head.point_pool]\n", include_str!("../../../configs/second_iou_cpu.toml"));
+        assert!(err(&voxel_points).contains("point_pool"), "{}", err(&voxel_points));
+        assert!(err("[roi_head.point_pool]\nlattice = 0").contains("lattice"));
     }
 
     #[test]
@@ -471,6 +479,7 @@ mod tests {
             "pointpillars_paper.toml",
             "centerpoint_cpu.toml",
             "pointpillars_rcnn_cpu.toml",
+            "pointpillars_rcnn_points_cpu.toml",
             "centerpoint_rcnn_cpu.toml",
             "pointpillars_rcnn_paper.toml",
             "second_cpu.toml",

@@ -33,7 +33,9 @@ pub use crate::post_process::Detection;
 use crate::post_process::{nms_detections, to_detections};
 pub use crate::preprocess::{Inputs, Preprocessor};
 use crate::roi_heads::roi_head::refined_frames;
-use crate::roi_heads::{ProposalBatch, Proposals, RoiBatchTargets, RoiOutput, RoiSource, SecondStage, StageGeometry};
+use crate::roi_heads::{
+    PillarPoints, ProposalBatch, Proposals, RoiBatchTargets, RoiOutput, RoiSource, SecondStage, StageGeometry,
+};
 use crate::scatter::scatter;
 use crate::sparse::SparseTensor;
 use crate::vfe::{MeanVfe, Vfe};
@@ -185,6 +187,17 @@ impl Detector {
         Ok((neck, stages))
     }
 
+    /// The batch's pillars for a second stage that reads points (pillar grids only).
+    fn pillar_points<'a>(&self, x: &'a Inputs) -> Option<PillarPoints<'a>> {
+        let grid = self.prep.grid;
+        (!grid.voxels).then_some(PillarPoints {
+            features: &x.features,
+            cells: &x.cells,
+            batch_size: x.batch_size,
+            grid,
+        })
+    }
+
     /// Whether the chain has a sparse 3-D backbone (a voxel detector).
     pub fn has_backbone_3d(&self) -> bool {
         self.backbone_3d.is_some()
@@ -203,7 +216,7 @@ impl Detector {
             Some(stage) => {
                 let props = self.proposals(stage.as_ref(), &dense, x.batch_size, false)?;
                 let batch = ProposalBatch::collate(&props).to_device(self.device());
-                let src = RoiSource { bev: &bev, voxels: voxels.as_deref() };
+                let src = RoiSource { bev: &bev, voxels: voxels.as_deref(), points: self.pillar_points(x) };
                 let out = stage.forward_t(&src, &batch.rois, &self.prep.map, train)?;
                 Some(RoiStage { out, targets: None, proposals: Some(batch) })
             }
@@ -228,7 +241,7 @@ impl Detector {
                 }
                 let props = self.proposals(stage.as_ref(), &dense, x.batch_size, true)?;
                 let targets = stage.sample(&props, gt, rng)?.to_device(self.device());
-                let src = RoiSource { bev: &bev, voxels: voxels.as_deref() };
+                let src = RoiSource { bev: &bev, voxels: voxels.as_deref(), points: self.pillar_points(x) };
                 let out = stage.forward_t(&src, &targets.rois, &self.prep.map, true)?;
                 Some(RoiStage { out, targets: Some(targets), proposals: None })
             }
@@ -342,7 +355,7 @@ impl Detector {
     pub fn roi_tensors(&self, bev: &Tensor, rois: &Tensor) -> Result<Option<Vec<Tensor>>> {
         match &self.roi_head {
             Some(stage) => {
-                let src = RoiSource { bev, voxels: None };
+                let src = RoiSource { bev, voxels: None, points: None };
                 Ok(Some(stage.forward_t(&src, rois, &self.prep.map, false)?.to_tensors()))
             }
             None => Ok(None),

@@ -212,6 +212,21 @@ fn two_stage_overfits_one_frame_in_a_rotated_detector_frame() {
     overfit_with(HeadConfig::Anchor(AnchorHeadConfig::default()), Some(roi), Some(t), 300);
 }
 
+/// The second stage with raw-point RoI features beside the BEV lattice, in the rotated frame
+/// (the pool looks pillars up in the detector frame the points were gridded in).
+#[test]
+fn two_stage_with_point_pool_overfits_one_frame_in_a_rotated_detector_frame() {
+    let t = Pose::from_parts(
+        nalgebra::Translation3::new(1.5, -2.0, 1.9),
+        nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, 0.35),
+    );
+    let roi = RoiHeadConfig {
+        point_pool: Some(pi3det_nn::roi_heads::PointRoiPoolConfig { lattice: 6, margin: 0.4, channels: vec![16, 32] }),
+        ..small_roi()
+    };
+    overfit_with(HeadConfig::Anchor(AnchorHeadConfig::default()), Some(roi), Some(t), 300);
+}
+
 /// SECOND's chain: 0.1 × 0.1 × 0.2 m voxels (mean VFE), a narrow VoxelBackBone8x, height
 /// compression, a two-block BEV backbone at the 3-D backbone's stride.
 fn second(cfg: &mut DetectorConfig) {

@@ -9,6 +9,7 @@
 //! | [`roi_sampler`] | OpenPCDet `ProposalTargetLayer`: class-aware 3D IoU, fg / hard bg / easy bg sampling, IoU-guided score targets |
 //! | [`roi_coder`] | box residuals in each RoI's own frame (encode in Rust, decode on tensors), corner loss |
 //! | [`bev_roi_pool`] | bilinear RoI pooling on the BEV map: `G × G` lattice or centre + 4 face centres |
+//! | [`point_roi_pool`] | raw points of each RoI in its own frame, a small PointNet and a max (z evidence the BEV map lacks) |
 //! | [`voxel_roi_pool`] | Voxel R-CNN's voxel RoI pooling: `G³` grid points, voxel query on the sparse backbone's stages |
 //! | [`roi_head`] | the head (point layer, shared MLP, IoU and box branches), its losses and the refinement |
 //!
@@ -23,6 +24,7 @@
 //! [`crate::target_assigner::center::CenterMap`]).
 
 pub mod bev_roi_pool;
+pub mod point_roi_pool;
 pub mod proposal;
 pub mod roi_coder;
 pub mod roi_head;
@@ -30,6 +32,7 @@ pub mod roi_sampler;
 pub mod voxel_roi_pool;
 
 pub use bev_roi_pool::{BevRoiPool, BevRoiPoolConfig, PoolLayout};
+pub use point_roi_pool::{PillarPoints, PointRoiPool, PointRoiPoolConfig};
 pub use proposal::{ProposalBatch, ProposalConfig, Proposals};
 pub use roi_coder::{boxes_to_corners, corner_loss, RoiCoder};
 pub use roi_head::{RoiHead, RoiHeadConfig, RoiLosses, RoiOutput, RoiSource, ScoreFusion, ScoreTarget};

@@ -18,6 +18,7 @@ use tch::nn::{self, Module, ModuleT};
 use tch::{Device, Kind, Reduction, Tensor};
 
 use super::bev_roi_pool::{BevRoiPool, BevRoiPoolConfig};
+use super::point_roi_pool::{PillarPoints, PointRoiPool, PointRoiPoolConfig};
 use super::proposal::ProposalConfig;
 use super::roi_coder::{corner_loss, RoiCoder};
 use super::roi_sampler::{RoiBatchTargets, RoiSamplerConfig};
@@ -64,6 +65,10 @@ pub struct RoiHeadConfig {
     /// is then unused); needs a `[backbone_3d]`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub voxel_pool: Option<VoxelRoiPoolConfig>,
+    /// Raw-point features of each RoI ([`PointRoiPool`]), concatenated to the pooled BEV
+    /// features before the shared MLP; pillar detectors only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub point_pool: Option<PointRoiPoolConfig>,
     /// Channels of the per-sample point layer; 0 feeds the raw `C·P` pooled values to the MLP.
     pub point_channels: i64,
     /// Shared MLP; its output is [`RoiOutput::features`].
@@ -96,6 +101,7 @@ impl Default for RoiHeadConfig {
         Self {
             pool: BevRoiPoolConfig::default(),
             voxel_pool: None,
+            point_pool: None,
             point_channels: 64,
             shared_fc: vec![256, 256],
             cls_fc: vec![256, 256],
@@ -120,6 +126,9 @@ impl RoiHeadConfig {
         self.pool.validate()?;
         if let Some(v) = &self.voxel_pool {
             v.validate()?;
+        }
+        if let Some(p) = &self.point_pool {
+            p.validate()?;
         }
         self.sampler.validate()?;
         self.proposal.validate()?;
@@ -169,7 +178,12 @@ impl RoiHeadConfig {
         }
         let point =
             (self.point_channels > 0).then(|| FcLayer::new(&vs / "point", in_channels, self.point_channels, bn));
+        let point_pool = match &self.point_pool {
+            Some(c) => Some(c.init(&vs / "point_pool")?),
+            None => None,
+        };
         let mut dim = if self.point_channels > 0 { self.point_channels * p } else { in_channels * p };
+        dim += point_pool.as_ref().map_or(0, PointRoiPool::out_channels);
         let stack = |name: &str, dim: &mut i64, channels: &[i64]| -> Vec<FcLayer> {
             channels
                 .iter()
@@ -210,6 +224,7 @@ impl RoiHeadConfig {
             feature_dim,
             pool,
             voxel_pool,
+            point_pool,
             point,
             shared,
             cls,
@@ -248,6 +263,8 @@ impl FcLayer {
 pub struct RoiSource<'a> {
     pub bev: &'a Tensor,
     pub voxels: Option<&'a [(SparseTensor, StageGeometry)]>,
+    /// The batch's pillars, for a head with a [`PointRoiPool`].
+    pub points: Option<PillarPoints<'a>>,
 }
 
 /// The head's outputs for `rois [B, N, 7]`.
@@ -298,6 +315,7 @@ pub struct RoiHead {
     feature_dim: i64,
     pool: BevRoiPool,
     voxel_pool: Option<VoxelRoiPool>,
+    point_pool: Option<PointRoiPool>,
     point: Option<FcLayer>,
     shared: Vec<FcLayer>,
     cls: Vec<FcLayer>,
@@ -321,7 +339,7 @@ impl RoiHead {
     /// gradient) → [`RoiOutput`]. Errors on mismatched shapes, and in training on a single RoI
     /// (batch norm needs two rows).
     pub fn forward_t(&self, bev: &Tensor, rois: &Tensor, map: &CenterMap, train: bool) -> Result<RoiOutput> {
-        self.forward_source(&RoiSource { bev, voxels: None }, rois, map, train)
+        self.forward_source(&RoiSource { bev, voxels: None, points: None }, rois, map, train)
     }
 
     /// Whether the head pools from voxels (Voxel R-CNN).
@@ -356,6 +374,13 @@ impl RoiHead {
             }
             None => pooled.reshape([b * n, c * p]),
         };
+        if let Some(pp) = &self.point_pool {
+            let pts = src.points.as_ref().ok_or_else(|| {
+                NnError::Input("roi head: its point pool needs the batch's pillars, which this path does not have (the TorchScript export of the second stage takes only the BEV map and the RoIs)".into())
+            })?;
+            let pf = pp.forward(pts, rois)?.view([b * n, -1]).to_kind(x.kind());
+            x = Tensor::cat(&[x, pf], 1);
+        }
         let dropout = |x: Tensor| if self.cfg.dropout > 0.0 { x.dropout(self.cfg.dropout, train) } else { x };
         for (k, layer) in self.shared.iter().enumerate() {
             x = layer.forward_t(&x, train);
