@@ -8,7 +8,8 @@
 //! occupied cells only, each holding up to `max_points_per_pillar` points); the points inside the
 //! enlarged box are expressed in the RoI's own frame (metres and in units of the enlarged size, plus
 //! intensity), a small PointNet (`Linear → ReLU` per layer) runs on them and a max over the RoI's
-//! points plus `ln(1 + n)/5` of its point count give the RoI's vector `[B, N, C + 1]`, which the
+//! points plus `ln(1 + n)/5` of its count of point lookups (a point whose cell two lattice
+//! positions hit counts twice) give the RoI's vector `[B, N, C + 1]`, which the
 //! RoI head concatenates to its BEV features. Differentiable in the PointNet's weights only (RoIs
 //! and points are constants). Pillars only; a cell looked up twice contributes its points twice,
 //! which a max does not mind.
@@ -141,7 +142,7 @@ impl PointRoiPool {
             false,
         );
         let rows = table.index_select(0, &flat.view([-1]));
-        let raw = pts.features.to_device(dev).to_kind(Kind::Float).narrow(2, 0, 4);
+        let raw = pts.features.narrow(2, 0, 4).to_device(dev).to_kind(Kind::Float);
         let raw = Tensor::cat(&[raw, Tensor::zeros([1, m, 4], (Kind::Float, dev))], 0);
         let raw = raw.index_select(0, &rows).view([r, -1, 4]); // [R, S, 4]
                                                                // The RoI's frame.
