@@ -68,11 +68,20 @@ pub struct PostConfig {
     pub nms_post_max: usize,
     /// Run NMS per class instead of over all classes at once.
     pub per_class_nms: bool,
+    /// Fit each detection's bottom and top to the frame's points after NMS (absent: off).
+    pub ground_fit: Option<crate::ground_fit::GroundFitConfig>,
 }
 
 impl Default for PostConfig {
     fn default() -> Self {
-        Self { score_threshold: 0.1, nms_iou: 0.01, nms_pre_max: 4096, nms_post_max: 500, per_class_nms: false }
+        Self {
+            score_threshold: 0.1,
+            nms_iou: 0.01,
+            nms_pre_max: 4096,
+            nms_post_max: 500,
+            per_class_nms: false,
+            ground_fit: None,
+        }
     }
 }
 
@@ -314,6 +323,9 @@ impl DetectorConfig {
         if p.nms_pre_max == 0 || p.nms_post_max == 0 {
             return Err(NnError::Config("post: nms_pre_max and nms_post_max must be positive".into()));
         }
+        if let Some(g) = &p.ground_fit {
+            g.validate()?;
+        }
         let total_stride: i64 = self.backbone.layer_strides.iter().product::<i64>()
             * self.backbone_3d.as_ref().map_or(1, |b| b.xy_stride());
         if grid.nx as i64 % total_stride != 0 || grid.ny as i64 % total_stride != 0 {
@@ -457,6 +469,11 @@ mod tests {
         )
         .contains("GiB"));
         assert!(err("[post]\nscore_threshold = -0.1").contains("score_threshold"));
+        assert!(err("[post.ground_fit]\nground_quantile = 2.0").contains("ground_quantile"));
+        assert!(err("[post.ground_fit]\nmargin_m = 0.0").contains("margin_m"));
+        assert!(err("[post.ground_fit]\nmargins = 1.0").contains("margins"));
+        let fit = DetectorConfig::from_toml_str("[post.ground_fit]\nmax_shift_m = 0.5").unwrap();
+        assert_eq!(fit.post.ground_fit.map(|g| g.max_shift_m), Some(0.5));
         let unknown = "[[train.augment]]\ntype = \"gt_sampling\"\nsample = [{ class = \"Cyclist\", count = 5 }]";
         assert!(err(unknown).contains("Cyclist"));
         assert!(err("[head]\ntype = \"anchor\"\nanchors = []").contains("head.anchors"));

@@ -17,6 +17,7 @@ use rayon::prelude::*;
 use crate::augment::Augment;
 use crate::dense_heads::{BatchTargets, FrameTargets};
 use crate::error::{NnError, Result};
+use crate::ground_fit::{PointIndex, INDEX_CELL_M};
 use crate::pillarize::{Grid, Pillarizer, Pillars};
 use crate::preprocess::{Inputs, Preprocessor};
 use pi3det_geometry::{Box3d, Pose};
@@ -101,6 +102,8 @@ pub struct Batch {
     pub gt: Vec<FrameGt>,
     /// The frames' infos (for writing detections).
     pub infos: Vec<FrameInfo>,
+    /// Per frame at inference, when the config fits boxes to the points: the points' index.
+    pub point_index: Vec<Option<PointIndex>>,
     /// Seconds spent reading and preparing the batch on the loader thread.
     pub prep_seconds: f64,
     pub num_pillars: usize,
@@ -123,6 +126,9 @@ pub struct FrameGt {
 /// A frame prepared for the network.
 pub struct PreparedFrame {
     pub pillars: Pillars,
+    /// At inference: the frame's points (detector frame) indexed for the vertical box fit
+    /// ([`crate::ground_fit`]).
+    pub point_index: Option<PointIndex>,
     pub targets: Option<FrameTargets>,
     pub detector_from_lidar: Pose,
     pub gt: FrameGt,
@@ -201,10 +207,17 @@ fn prepare_with(
             ignored: s.ignored,
             ignored_classes: s.ignored_classes,
         };
-        Ok(PreparedFrame { pillars, targets, detector_from_lidar: s.detector_from_lidar, gt })
+        Ok(PreparedFrame { pillars, targets, point_index: None, detector_from_lidar: s.detector_from_lidar, gt })
     } else {
         let pillars = pillarizer.run(&s.points, cfg.pillars.max_pillars_test);
-        Ok(PreparedFrame { pillars, targets: None, detector_from_lidar: s.detector_from_lidar, gt: FrameGt::default() })
+        let point_index = cfg.post.ground_fit.as_ref().map(|_| PointIndex::new(&s.points, INDEX_CELL_M));
+        Ok(PreparedFrame {
+            pillars,
+            targets: None,
+            point_index,
+            detector_from_lidar: s.detector_from_lidar,
+            gt: FrameGt::default(),
+        })
     }
 }
 
@@ -250,13 +263,21 @@ pub fn prepare_batch(
     let num_pillars = pillars.iter().map(|p| p.len()).sum();
     let dropped_points = pillars.iter().map(|p| p.dropped_points).sum();
     let (infos, prepared): (Vec<FrameInfo>, Vec<PreparedFrame>) = items.into_iter().unzip();
-    let (detector_from_lidar, gt) = prepared.into_iter().map(|p| (p.detector_from_lidar, p.gt)).unzip();
+    let mut point_index = Vec::with_capacity(prepared.len());
+    let (detector_from_lidar, gt) = prepared
+        .into_iter()
+        .map(|p| {
+            point_index.push(p.point_index);
+            (p.detector_from_lidar, p.gt)
+        })
+        .unzip();
     Ok(Batch {
         inputs,
         targets,
         detector_from_lidar,
         gt,
         infos,
+        point_index,
         prep_seconds: t.elapsed().as_secs_f64(),
         num_pillars,
         dropped_points,

@@ -93,7 +93,14 @@ pub fn detect_with(
             tch::Cuda::synchronize(0);
         }
         let t1 = Instant::now();
-        let dets = det.post_process(&y, x.batch_size)?;
+        let mut dets = det.post_process(&y, x.batch_size)?;
+        if let Some(g) = &det.cfg().post.ground_fit {
+            for (d, idx) in dets.iter_mut().zip(&batch.point_index) {
+                if let Some(idx) = idx {
+                    crate::ground_fit::fit_detections(d, idx, g);
+                }
+            }
+        }
         let t2 = Instant::now();
         lat.frames += n;
         lat.prep_ms += batch.prep_seconds * 1e3;

@@ -46,6 +46,7 @@ pub mod device;
 pub mod error;
 pub mod eval;
 pub mod export;
+pub mod ground_fit;
 pub mod losses;
 pub mod necks;
 pub mod optim;

@@ -132,6 +132,28 @@ fn resume_reproduces_an_uninterrupted_run() {
             assert!((o.score.unwrap() - p.score.unwrap()).abs() < 1e-5);
         }
     }
+    // `[post.ground_fit]` moves boxes only vertically, after NMS: same boxes in BEV, same
+    // scores, some z and heights changed (score threshold 0 so that there are many boxes).
+    let with_fit = |fit: bool| {
+        let mut c = ck.config.clone();
+        c.post.score_threshold = 0.0;
+        c.post.ground_fit = fit.then(pi3det_nn::ground_fit::GroundFitConfig::default);
+        let mut d = pi3det_nn::Detector::new(&c, Device::Cpu).unwrap();
+        ck.load_into(&mut d, &a.join("final.safetensors")).unwrap();
+        detect::detect(&d, &val_set, 2, &mut |_, _| {}).unwrap().0
+    };
+    let (plain, fitted) = (with_fit(false), with_fit(true));
+    let (mut boxes, mut moved) = (0, 0);
+    for (f, g) in plain.iter().zip(&fitted) {
+        assert_eq!(f.objects.len(), g.objects.len());
+        for (o, p) in f.objects.iter().zip(&g.objects) {
+            let (b, c) = (o.box3d, p.box3d);
+            assert_eq!((o.score, b.x, b.y, b.dx, b.dy, b.heading), (p.score, c.x, c.y, c.dx, c.dy, c.heading));
+            boxes += 1;
+            moved += usize::from((b.z - c.z).abs() > 1e-6 || (b.dz - c.dz).abs() > 1e-6);
+        }
+    }
+    assert!(boxes > 0 && moved > 0, "{moved} of {boxes} boxes fitted");
     let out = dir.path().join("det");
     std::fs::create_dir_all(&out).unwrap();
     detect::write_jsonl(&out.join("d.jsonl"), &frames).unwrap();

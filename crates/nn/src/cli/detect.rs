@@ -35,6 +35,10 @@ pub struct DetectArgs {
     /// Override the checkpoint's NMS mode: per class (true) or over all classes at once (false).
     #[arg(long, value_name = "BOOL")]
     pub per_class_nms: Option<bool>,
+    /// Fit each box's bottom to the local ground and its top to the highest point inside it after
+    /// NMS (`[post.ground_fit]` with its defaults), or turn the checkpoint's fit off (false).
+    #[arg(long, value_name = "BOOL")]
+    pub ground_fit: Option<bool>,
     /// Override the z shift applied to the points (e.g. to move a drone's ground to z ≈ 0).
     #[arg(long, allow_negative_numbers = true)]
     pub shift_z: Option<f64>,
@@ -80,6 +84,13 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     }
     if let Some(b) = args.per_class_nms {
         ck.config.post.per_class_nms = b;
+    }
+    match args.ground_fit {
+        Some(false) => ck.config.post.ground_fit = None,
+        Some(true) if ck.config.post.ground_fit.is_none() => {
+            ck.config.post.ground_fit = Some(crate::ground_fit::GroundFitConfig::default())
+        }
+        _ => {}
     }
     let mut det = crate::Detector::new(&ck.config, device)?;
     ck.load_into(&mut det, &args.ckpt)?;
