@@ -34,6 +34,14 @@
 //!   minus ground truth in the LiDAR frame; heading is compared modulo π (AP ignores direction),
 //!   wrapped to [−π/2, π/2).
 //!
+//! * **What if exact**: the same localisation pairs, with the named components of each paired
+//!   detection replaced by its ground truth's (`z`, `height`, both, the BEV centre, length and
+//!   width, heading), re-evaluated with the protocol: the AP each error costs. Unpaired
+//!   detections and ground truths stay as they are, so AP with every component exact is the
+//!   class's AP at the loose IoU, not 100. A row can lower AP: a detection that describes its
+//!   box with length and width swapped and the heading turned by π/2 (the same box) is broken by
+//!   making only its heading, or only its size, exact — small square-ish boxes (pedestrians).
+//!
 //! Empty bins and undefined shares are `None` (`null` in JSON), never NaN.
 
 use std::collections::BTreeSet;
@@ -97,6 +105,30 @@ pub struct ClassBreakdown {
     pub gt_without_points: usize,
     pub misplaced: Misplaced,
     pub localisation: Localisation,
+    /// AP with components of the paired detections made exact, in [`WHAT_IF`]'s order (absent
+    /// from breakdowns written before it existed).
+    #[serde(default)]
+    pub what_if: Vec<WhatIf>,
+}
+
+/// Components of a box a "what if" row takes from the ground truth: name and indices into
+/// `[x, y, z, dx, dy, dz, heading]`.
+pub const WHAT_IF: [(&str, &[usize]); 6] = [
+    ("z", &[2]),
+    ("height", &[5]),
+    ("z+height", &[2, 5]),
+    ("xy", &[0, 1]),
+    ("length+width", &[3, 4]),
+    ("heading", &[6]),
+];
+
+/// The class's AP at its main thresholds with some components of every paired detection exact.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WhatIf {
+    /// What was made exact (a [`WHAT_IF`] name).
+    pub exact: String,
+    pub ap_bev_r40_pct: Option<f64>,
+    pub ap_3d_r40_pct: Option<f64>,
 }
 
 /// AP and recall of one bin. `None` where the bin has no ground truth (or, for AP, where the
@@ -224,7 +256,15 @@ pub fn breakdown(gt: &[FrameInfo], dets: &Detections, opts: &EvalOptions) -> Res
     let prepared: Vec<PreparedFrame> =
         gts.par_iter().zip(dts.par_iter()).map(|(g, d)| PreparedFrame::new(g, d, &classes_lc)).collect();
     let split = Split { prepared: &prepared, dts: &dts, gt_lidar: &gt_lidar, dt_lidar: &dt_lidar };
-    let classes = classes.iter().enumerate().map(|(c, spec)| split.class(c, spec)).collect();
+    let classes = classes
+        .iter()
+        .enumerate()
+        .map(|(c, spec)| {
+            let mut b = split.class(c, spec);
+            b.what_if = split.what_if(gt, &gts, c, spec, &classes_lc);
+            b
+        })
+        .collect();
     Ok(Breakdown { difficulty: DIFFICULTIES[DIFFICULTY].to_string(), loose_iou: LOOSE_IOU, classes })
 }
 
@@ -326,11 +366,9 @@ impl Split<'_> {
     }
 
     fn class(&self, c: usize, spec: &ClassSpec) -> ClassBreakdown {
-        let class_lc = spec.name.to_lowercase();
         let min_iou = [spec.overlaps.strict[1], spec.overlaps.strict[2]];
         let base: Vec<States> = self.prepared.iter().map(|p| p.states[c][DIFFICULTY].clone()).collect();
-        let is_class: Vec<Vec<bool>> =
-            self.dts.iter().map(|d| d.objects.iter().map(|o| o.name.to_lowercase() == class_lc).collect()).collect();
+        let is_class = self.is_class(spec);
         // DontCare regions come after the objects and have no LiDAR box: in no bin.
         let gt_lidar = |f: usize, i: usize| self.gt_lidar[f].get(i);
 
@@ -387,7 +425,79 @@ impl Split<'_> {
             gt_without_points,
             misplaced: self.misplaced(&base, &is_class, min_iou),
             localisation: self.localisation(&base, &is_class),
+            what_if: Vec::new(),
         }
+    }
+
+    /// Whether each detection of each frame is of class `spec`.
+    fn is_class(&self, spec: &ClassSpec) -> Vec<Vec<bool>> {
+        let class_lc = spec.name.to_lowercase();
+        self.dts.iter().map(|d| d.objects.iter().map(|o| o.name.to_lowercase() == class_lc).collect()).collect()
+    }
+
+    /// The [`WHAT_IF`] rows of class `c` (see the module docs).
+    fn what_if(
+        &self,
+        infos: &[FrameInfo],
+        gts: &[KittiFrame],
+        c: usize,
+        spec: &ClassSpec,
+        classes_lc: &[String],
+    ) -> Vec<WhatIf> {
+        let min_iou = [spec.overlaps.strict[1], spec.overlaps.strict[2]];
+        let base: Vec<States> = self.prepared.iter().map(|p| p.states[c][DIFFICULTY].clone()).collect();
+        let is_class = self.is_class(spec);
+        let pairs: Vec<Vec<(usize, usize)>> =
+            (0..base.len()).into_par_iter().map(|f| self.pairs(f, &base[f], &is_class[f])).collect();
+        WHAT_IF
+            .iter()
+            .map(|&(name, components)| {
+                let prepared: Vec<PreparedFrame> = (0..base.len())
+                    .into_par_iter()
+                    .map(|f| {
+                        let mut dt = self.dts[f].clone();
+                        for &(i, j) in &pairs[f] {
+                            let mut b = self.dt_lidar[f][j].to_array();
+                            let g = self.gt_lidar[f][i].box3d.to_array();
+                            for &k in components {
+                                b[k] = g[k];
+                            }
+                            convert::set_detection_box(&infos[f], &mut dt.objects[j], &Box3d::from_array(b));
+                        }
+                        PreparedFrame::new(&gts[f], &dt, classes_lc)
+                    })
+                    .collect();
+                let split = Split { prepared: &prepared, ..*self };
+                let states: Vec<States> = prepared.iter().map(|p| p.states[c][DIFFICULTY].clone()).collect();
+                let r = split.bin(&states, min_iou);
+                WhatIf { exact: name.to_string(), ap_bev_r40_pct: r.ap_bev_r40_pct, ap_3d_r40_pct: r.ap_3d_r40_pct }
+            })
+            .collect()
+    }
+
+    /// Counted ground truths and detections of the class of frame `f`, paired one to one
+    /// greedily by BEV IoU ≥ [`LOOSE_IOU`] (largest first; ties by GT then detection index).
+    fn pairs(&self, f: usize, st: &States, is_class: &[bool]) -> Vec<(usize, usize)> {
+        let rows = &self.prepared[f].overlaps[1];
+        let mut cand: Vec<(f64, usize, usize)> = Vec::new();
+        for i in (0..st.gt.len()).filter(|&i| st.gt[i] == 0 && i < self.gt_lidar[f].len()) {
+            for &(j, ov) in rows.row(i) {
+                if ov >= LOOSE_IOU && is_class[j as usize] {
+                    cand.push((ov, i, j as usize));
+                }
+            }
+        }
+        cand.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+        let (mut gt_used, mut dt_used) = (vec![false; st.gt.len()], vec![false; st.dt.len()]);
+        let mut out = Vec::new();
+        for (_, i, j) in cand {
+            if !gt_used[i] && !dt_used[j] {
+                gt_used[i] = true;
+                dt_used[j] = true;
+                out.push((i, j));
+            }
+        }
+        out
     }
 
     fn misplaced(&self, base: &[States], is_class: &[Vec<bool>], min_iou: [f64; 2]) -> Misplaced {
@@ -431,28 +541,9 @@ impl Split<'_> {
         let errors: Vec<[f64; 7]> = (0..base.len())
             .into_par_iter()
             .flat_map_iter(|f| {
-                let st = &base[f];
-                let rows = &self.prepared[f].overlaps[1];
-                let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
-                for i in (0..st.gt.len()).filter(|&i| st.gt[i] == 0 && i < self.gt_lidar[f].len()) {
-                    for &(j, ov) in rows.row(i) {
-                        if ov >= LOOSE_IOU && is_class[f][j as usize] {
-                            pairs.push((ov, i, j as usize));
-                        }
-                    }
-                }
-                pairs.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
-                let (mut gt_used, mut dt_used) = (vec![false; st.gt.len()], vec![false; st.dt.len()]);
-                let mut out = Vec::new();
-                for (_, i, j) in pairs {
-                    if gt_used[i] || dt_used[j] {
-                        continue;
-                    }
-                    gt_used[i] = true;
-                    dt_used[j] = true;
-                    out.push(box_error(&self.dt_lidar[f][j], &self.gt_lidar[f][i].box3d));
-                }
-                out
+                self.pairs(f, &base[f], &is_class[f])
+                    .into_iter()
+                    .map(move |(i, j)| box_error(&self.dt_lidar[f][j], &self.gt_lidar[f][i].box3d))
             })
             .collect();
         let stats = |k: usize| axis_error(errors.iter().map(|e| e[k]).collect());
@@ -576,6 +667,14 @@ pub fn format_breakdown(b: &Breakdown) -> String {
             "  localisation, detection − GT over {} pairs (one to one, greedy by BEV IoU ≥ {}):",
             l.num_pairs, b.loose_iou
         );
+        if !c.what_if.is_empty() {
+            let rows: Vec<String> = c
+                .what_if
+                .iter()
+                .map(|w| format!("{} {} / {}", w.exact, opt(w.ap_bev_r40_pct, 1), opt(w.ap_3d_r40_pct, 1)))
+                .collect();
+            let _ = writeln!(out, "  AP BEV / 3D with the paired GT's (what if exact): {}", rows.join(", "));
+        }
         if let Some(e) = &l.errors {
             let _ = writeln!(out, "    {:<14} {:>10} {:>10} {:>10}", "", "median|e|", "mean|e|", "mean e");
             for (name, a) in [

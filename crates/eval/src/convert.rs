@@ -221,6 +221,15 @@ pub(crate) fn detections_lidar(info: &FrameInfo, dets: &[Detection], f: &Filter)
     (KittiFrame { id: info.id.clone(), objects }, lidar)
 }
 
+/// Puts LiDAR box `b` into a detection of `info` in the reference's form (location, size,
+/// rotation; its 2D box, alpha and score stay): for "what if" evaluations.
+pub(crate) fn set_detection_box(info: &FrameInfo, obj: &mut KittiObject, b: &Box3d) {
+    let c = Camera::of(info).lidar_box(b);
+    obj.dimensions = c.dimensions_lhw;
+    obj.location = c.location;
+    obj.rotation_y = c.rotation_y;
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

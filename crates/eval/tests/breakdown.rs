@@ -124,6 +124,36 @@ fn z_shift_is_found_in_bev_misplaced_in_3d() {
     assert!(e.x_m.median_abs < 1e-12 && e.dz_m.mean_abs < 1e-12 && e.heading_rad.median_abs < 1e-12, "{e:?}");
 }
 
+/// 41 frames, each car detected 0.5 m too high and 0.6 m too short (BEV exact): 3D AP is 0, and
+/// only the rows that make both z and height exact give it back; a false positive far away stays.
+#[test]
+fn what_if_rows_give_back_what_each_error_costs() {
+    let g = car(10.0, 2.0);
+    let d = Box3d { z: g.z + 0.5, dz: g.dz - 0.6, ..g };
+    let gt: Vec<FrameInfo> = (0..41).map(|i| frame(i, vec![gt_obj(g, None)])).collect();
+    let fp = det(car(-20.0, 5.0), 0.95);
+    let d = dets((0..41).map(|i| vec![det(d, 0.5 + i as f64 / 100.0), fp.clone()]).collect());
+    let c = car_breakdown(&gt, &d);
+    assert!(close(c.all.ap_3d_r40_pct, 0.0), "{:?}", c.all);
+    let names: Vec<&str> = c.what_if.iter().map(|w| w.exact.as_str()).collect();
+    assert_eq!(names, ["z", "height", "z+height", "xy", "length+width", "heading"]);
+    let by = |n: &str| c.what_if.iter().find(|w| w.exact == n).unwrap();
+    for w in &c.what_if {
+        // BEV is exact already; the false positive outscores every true one.
+        assert_eq!(w.ap_bev_r40_pct, c.all.ap_bev_r40_pct, "{w:?}");
+    }
+    assert!(by("z+height").ap_3d_r40_pct == c.all.ap_bev_r40_pct && c.all.ap_bev_r40_pct.unwrap() > 40.0, "{c:?}");
+    for n in ["z", "height", "xy", "length+width", "heading"] {
+        assert!(close(by(n).ap_3d_r40_pct, 0.0), "{:?}", by(n));
+    }
+    let text = pi3det_eval::format_breakdown(&Breakdown {
+        difficulty: "moderate".into(),
+        loose_iou: 0.1,
+        classes: vec![c.clone()],
+    });
+    assert!(text.contains("what if exact") && text.contains("z+height"), "{text}");
+}
+
 #[test]
 fn heading_off_by_pi_is_no_error() {
     let g = car(10.0, 2.0);
