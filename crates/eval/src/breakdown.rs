@@ -464,11 +464,12 @@ impl Split<'_> {
                             }
                             convert::set_detection_box(&infos[f], &mut dt.objects[j], &Box3d::from_array(b));
                         }
-                        PreparedFrame::new(&gts[f], &dt, classes_lc)
+                        // Only this class: its states do not depend on the others.
+                        PreparedFrame::new(&gts[f], &dt, std::slice::from_ref(&classes_lc[c]))
                     })
                     .collect();
                 let split = Split { prepared: &prepared, ..*self };
-                let states: Vec<States> = prepared.iter().map(|p| p.states[c][DIFFICULTY].clone()).collect();
+                let states: Vec<States> = prepared.iter().map(|p| p.states[0][DIFFICULTY].clone()).collect();
                 let r = split.bin(&states, min_iou);
                 WhatIf { exact: name.to_string(), ap_bev_r40_pct: r.ap_bev_r40_pct, ap_3d_r40_pct: r.ap_3d_r40_pct }
             })

@@ -263,14 +263,12 @@ pub fn prepare_batch(
     let num_pillars = pillars.iter().map(|p| p.len()).sum();
     let dropped_points = pillars.iter().map(|p| p.dropped_points).sum();
     let (infos, prepared): (Vec<FrameInfo>, Vec<PreparedFrame>) = items.into_iter().unzip();
-    let mut point_index = Vec::with_capacity(prepared.len());
-    let (detector_from_lidar, gt) = prepared
-        .into_iter()
-        .map(|p| {
-            point_index.push(p.point_index);
-            (p.detector_from_lidar, p.gt)
-        })
-        .unzip();
+    let (mut detector_from_lidar, mut gt, mut point_index) = (Vec::new(), Vec::new(), Vec::new());
+    for p in prepared {
+        detector_from_lidar.push(p.detector_from_lidar);
+        gt.push(p.gt);
+        point_index.push(p.point_index);
+    }
     Ok(Batch {
         inputs,
         targets,

@@ -94,13 +94,7 @@ pub fn detect_with(
         }
         let t1 = Instant::now();
         let mut dets = det.post_process(&y, x.batch_size)?;
-        if let Some(g) = &det.cfg().post.ground_fit {
-            for (d, idx) in dets.iter_mut().zip(&batch.point_index) {
-                if let Some(idx) = idx {
-                    crate::ground_fit::fit_detections(d, idx, g);
-                }
-            }
-        }
+        crate::ground_fit::fit_frames(det.cfg().post.ground_fit.as_ref(), &mut dets, &batch.point_index);
         let t2 = Instant::now();
         lat.frames += n;
         lat.prep_ms += batch.prep_seconds * 1e3;

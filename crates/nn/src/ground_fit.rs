@@ -46,7 +46,7 @@ pub struct GroundFitConfig {
 
 impl Default for GroundFitConfig {
     fn default() -> Self {
-        // Chosen on one seed's vehicle val split (360 frames; README "Vertical fit").
+        // Chosen on one seed's vehicle val split (360 frames; README "Vertical box fit").
         Self {
             margin_m: 2.0,
             ground_quantile: 0.05,
@@ -97,8 +97,8 @@ pub struct PointIndex {
 }
 
 impl PointIndex {
-    /// Cells of `cell_m`; the grid covers the points' bounds, capped at `max_cells` by growing the
-    /// cells. Non-finite points are skipped.
+    /// Cells of `cell_m`; the grid covers the points' bounds, with cells grown when it would
+    /// exceed 4M cells. Non-finite points are skipped.
     pub fn new(points: &[[f32; 4]], cell_m: f64) -> Self {
         const MAX_CELLS: f64 = 4.0e6;
         let finite = |p: &&[f32; 4]| p[0].is_finite() && p[1].is_finite() && p[2].is_finite();
@@ -177,13 +177,11 @@ pub enum FitOutcome {
 /// Fits one box's vertical extent (see the module docs); the BEV footprint is not touched.
 pub fn fit_box(b: &Box3d, index: &PointIndex, cfg: &GroundFitConfig) -> (Box3d, FitOutcome) {
     let reach = b.bev_radius() + cfg.margin_m;
-    let (s, c) = b.heading.sin_cos();
     let (bottom0, top0) = (b.bottom(), b.z + 0.5 * b.dz);
     let mut ground_z = Vec::new();
     let mut inside = Vec::new();
     for p in index.within([b.x, b.y], reach) {
-        let (ex, ey) = (p[0] as f64 - b.x, p[1] as f64 - b.y);
-        let (u, v) = ((c * ex + s * ey).abs(), (-s * ex + c * ey).abs());
+        let [u, v, _] = b.to_local([p[0] as f64, p[1] as f64, b.z]).map(f64::abs);
         if u > 0.5 * b.dx || v > 0.5 * b.dy {
             ground_z.push(p[2]);
         } else if u <= 0.5 * b.dx - cfg.top_inset_m && v <= 0.5 * b.dy - cfg.top_inset_m {
@@ -200,9 +198,10 @@ pub fn fit_box(b: &Box3d, index: &PointIndex, cfg: &GroundFitConfig) -> (Box3d, 
         return (*b, FitOutcome::Kept);
     }
     let (lo, hi) = (ground + cfg.top_min_frac * b.dz, top0 + cfg.top_reach_m);
-    let roof: Vec<f64> = inside.into_iter().filter(|z| *z > lo && *z < hi).collect();
-    let (top, outcome) = if roof.len() >= cfg.min_top_points {
-        (roof.iter().copied().fold(f64::MIN, f64::max), FitOutcome::GroundAndTop)
+    let (roof_points, roof_top) =
+        inside.iter().filter(|z| **z > lo && **z < hi).fold((0usize, f64::MIN), |(n, m), z| (n + 1, m.max(*z)));
+    let (top, outcome) = if roof_points >= cfg.min_top_points {
+        (roof_top, FitOutcome::GroundAndTop)
     } else {
         (top0, FitOutcome::GroundOnly)
     };
@@ -212,16 +211,17 @@ pub fn fit_box(b: &Box3d, index: &PointIndex, cfg: &GroundFitConfig) -> (Box3d, 
     (Box3d { z: 0.5 * (top + ground), dz: top - ground, ..*b }, outcome)
 }
 
-/// Fits every detection of a frame in place; returns how many got a ground (with or without a
-/// fitted top).
-pub fn fit_detections(dets: &mut [Detection], index: &PointIndex, cfg: &GroundFitConfig) -> usize {
-    let mut fitted = 0;
-    for d in dets.iter_mut() {
-        let (b, outcome) = fit_box(&d.box3d, index, cfg);
-        d.box3d = b;
-        fitted += usize::from(outcome != FitOutcome::Kept);
+/// Fits the detections of each frame of a batch in place when `cfg` asks for it, with that
+/// frame's point index (frames without one, e.g. prepared without the fit, are left as they are).
+pub fn fit_frames(cfg: Option<&GroundFitConfig>, frames: &mut [Vec<Detection>], index: &[Option<PointIndex>]) {
+    let Some(cfg) = cfg else { return };
+    for (dets, idx) in frames.iter_mut().zip(index) {
+        if let Some(idx) = idx {
+            for d in dets.iter_mut() {
+                d.box3d = fit_box(&d.box3d, idx, cfg).0;
+            }
+        }
     }
-    fitted
 }
 
 /// The index cell size used by the detectors (metres).

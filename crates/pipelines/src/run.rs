@@ -141,9 +141,8 @@ impl LiveDetector {
         }
         let t2 = Instant::now();
         let mut dets = det.post_process(&y, 1)?;
-        if let (Some(g), Some(idx), Some(d)) = (&det.cfg().post.ground_fit, &p.point_index, dets.first_mut()) {
-            pi3det_nn::ground_fit::fit_detections(d, idx, g);
-        }
+        let index = [p.point_index];
+        pi3det_nn::ground_fit::fit_frames(det.cfg().post.ground_fit.as_ref(), &mut dets, &index);
         let objects = dets.first().map(|d| to_objects(det, d, &p.detector_from_lidar)).unwrap_or_default();
         let t3 = Instant::now();
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
