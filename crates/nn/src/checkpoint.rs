@@ -158,7 +158,21 @@ impl Checkpoint {
 
 /// Builds a detector from a checkpoint on `device`.
 pub fn load_detector(path: &Path, device: Device) -> Result<(Detector, Checkpoint)> {
-    let ck = load(path)?;
+    load_detector_with_post(path, None, device)
+}
+
+/// [`load_detector`] with the checkpoint's `[post]` replaced by `post` (post-processing does not
+/// touch the weights, so a model trained before a post-processing change runs with the new one).
+pub fn load_detector_with_post(
+    path: &Path,
+    post: Option<&crate::config::PostConfig>,
+    device: Device,
+) -> Result<(Detector, Checkpoint)> {
+    let mut ck = load(path)?;
+    if let Some(p) = post {
+        ck.config.post = p.clone();
+        ck.config.validate()?;
+    }
     let mut det = Detector::new(&ck.config, device)?;
     ck.load_into(&mut det, path)?;
     Ok((det, ck))

@@ -70,6 +70,16 @@ pub struct PostConfig {
     pub per_class_nms: bool,
     /// Fit each detection's bottom and top to the frame's points after NMS (absent: off).
     pub ground_fit: Option<crate::ground_fit::GroundFitConfig>,
+    /// Fit each long detection's heading and BEV centre to the points on its faces, after the
+    /// vertical fit (absent: off).
+    pub bev_fit: Option<crate::bev_fit::BevFitConfig>,
+}
+
+impl PostConfig {
+    /// Whether a post-NMS fit needs the frame's points (then the loader indexes them).
+    pub fn fits_to_points(&self) -> bool {
+        self.ground_fit.is_some() || self.bev_fit.is_some()
+    }
 }
 
 impl Default for PostConfig {
@@ -81,6 +91,7 @@ impl Default for PostConfig {
             nms_post_max: 500,
             per_class_nms: false,
             ground_fit: None,
+            bev_fit: None,
         }
     }
 }
@@ -326,6 +337,9 @@ impl DetectorConfig {
         if let Some(g) = &p.ground_fit {
             g.validate()?;
         }
+        if let Some(b) = &p.bev_fit {
+            b.validate()?;
+        }
         let total_stride: i64 = self.backbone.layer_strides.iter().product::<i64>()
             * self.backbone_3d.as_ref().map_or(1, |b| b.xy_stride());
         if grid.nx as i64 % total_stride != 0 || grid.ny as i64 % total_stride != 0 {
@@ -474,6 +488,9 @@ mod tests {
         assert!(err("[post.ground_fit]\nmargins = 1.0").contains("margins"));
         let fit = DetectorConfig::from_toml_str("[post.ground_fit]\nmax_shift_m = 0.5").unwrap();
         assert_eq!(fit.post.ground_fit.map(|g| g.max_shift_m), Some(0.5));
+        assert!(err("[post.bev_fit]\nheading_step_rad = 0.0").contains("heading_step_rad"));
+        let bev = DetectorConfig::from_toml_str("[post.bev_fit]\nmin_points = 50").unwrap();
+        assert_eq!(bev.post.bev_fit.map(|b| b.min_points), Some(50));
         let unknown = "[[train.augment]]\ntype = \"gt_sampling\"\nsample = [{ class = \"Cyclist\", count = 5 }]";
         assert!(err(unknown).contains("Cyclist"));
         assert!(err("[head]\ntype = \"anchor\"\nanchors = []").contains("head.anchors"));

@@ -210,7 +210,7 @@ fn prepare_with(
         Ok(PreparedFrame { pillars, targets, point_index: None, detector_from_lidar: s.detector_from_lidar, gt })
     } else {
         let pillars = pillarizer.run(&s.points, cfg.pillars.max_pillars_test);
-        let point_index = cfg.post.ground_fit.as_ref().map(|_| PointIndex::new(&s.points, INDEX_CELL_M));
+        let point_index = cfg.post.fits_to_points().then(|| PointIndex::new(&s.points, INDEX_CELL_M));
         Ok(PreparedFrame {
             pillars,
             targets: None,

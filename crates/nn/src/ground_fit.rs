@@ -18,7 +18,6 @@ use pi3det_geometry::Box3d;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{NnError, Result};
-use crate::post_process::Detection;
 
 /// `[post.ground_fit]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -209,19 +208,6 @@ pub fn fit_box(b: &Box3d, index: &PointIndex, cfg: &GroundFitConfig) -> (Box3d, 
         return (*b, FitOutcome::Kept);
     }
     (Box3d { z: 0.5 * (top + ground), dz: top - ground, ..*b }, outcome)
-}
-
-/// Fits the detections of each frame of a batch in place when `cfg` asks for it, with that
-/// frame's point index (frames without one, e.g. prepared without the fit, are left as they are).
-pub fn fit_frames(cfg: Option<&GroundFitConfig>, frames: &mut [Vec<Detection>], index: &[Option<PointIndex>]) {
-    let Some(cfg) = cfg else { return };
-    for (dets, idx) in frames.iter_mut().zip(index) {
-        if let Some(idx) = idx {
-            for d in dets.iter_mut() {
-                d.box3d = fit_box(&d.box3d, idx, cfg).0;
-            }
-        }
-    }
 }
 
 /// The index cell size used by the detectors (metres).

@@ -16,6 +16,7 @@
 //! | [`augment`] | world flip / rotation / scaling, random object rotation, GT sampling, Random Platform Jitter |
 //! | [`detector`] | the model chain `vfe → map_to_bev → backbone_2d → [neck] → dense_head` |
 //! | [`preprocess`], [`post_process`] | per-frame `detector_from_lidar`, pillars and targets; score threshold and rotated NMS |
+//! | [`ground_fit`], [`bev_fit`] | post-NMS box fits to the points: bottom and top; heading and BEV centre |
 //! | [`necks`] | the BEV-to-BEV slot |
 //! | [`roi_heads`] | the second stage: proposals, RoI sampling, BEV RoI pooling, IoU-guided score and box refinement |
 //! | [`data_loader`], [`train`], [`optim`], [`checkpoint`] | batches on a background thread, the training loop, AdamW + one-cycle, safetensors checkpoints |
@@ -33,6 +34,7 @@ pub mod backbone_2d;
 pub mod backbones_3d;
 pub mod baselines;
 pub mod bench;
+pub mod bev_fit;
 pub mod box_coder;
 pub mod checkpoint;
 #[cfg(feature = "cli")]

@@ -60,3 +60,27 @@ pub fn nms_detections(
         run(dets)
     }
 }
+
+/// The post-NMS fits to the points that `post` asks for, in place, frame by frame: first the
+/// vertical fit ([`crate::ground_fit`]), then the planar one ([`crate::bev_fit`]), which needs
+/// the fitted bottom to tell body points from ground. Frames without a point index (prepared
+/// without a fit) are left as they are.
+pub fn fit_to_points(
+    post: &PostConfig,
+    frames: &mut [Vec<Detection>],
+    index: &[Option<crate::ground_fit::PointIndex>],
+    detector_from_lidar: &[pi3det_geometry::Pose],
+) {
+    for ((dets, idx), pose) in frames.iter_mut().zip(index).zip(detector_from_lidar) {
+        let Some(idx) = idx else { continue };
+        let sensor_xy = [pose.translation.x, pose.translation.y];
+        for d in dets.iter_mut() {
+            if let Some(g) = &post.ground_fit {
+                d.box3d = crate::ground_fit::fit_box(&d.box3d, idx, g).0;
+            }
+            if let Some(b) = &post.bev_fit {
+                d.box3d = crate::bev_fit::fit_box(&d.box3d, idx, sensor_xy, b).0;
+            }
+        }
+    }
+}

@@ -82,6 +82,7 @@ fn config(head: HeadConfig) -> DetectorConfig {
             nms_post_max: 100,
             per_class_nms: false,
             ground_fit: None,
+            bev_fit: None,
         },
         train: TrainConfig { lr: 0.003, weight_decay: 0.0, augment: vec![], ..TrainConfig::default() },
         ..DetectorConfig::default()

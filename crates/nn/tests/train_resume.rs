@@ -134,15 +134,17 @@ fn resume_reproduces_an_uninterrupted_run() {
     }
     // `[post.ground_fit]` moves boxes only vertically, after NMS: same boxes in BEV, same
     // scores, some z and heights changed (score threshold 0 so that there are many boxes).
-    let with_fit = |fit: bool| {
+    let with_fit = |ground: bool, bev: bool| {
         let mut c = ck.config.clone();
         c.post.score_threshold = 0.0;
-        c.post.ground_fit = fit.then(pi3det_nn::ground_fit::GroundFitConfig::default);
+        c.post.ground_fit = ground.then(pi3det_nn::ground_fit::GroundFitConfig::default);
+        let few = pi3det_nn::bev_fit::BevFitConfig { min_points: 5, ..Default::default() };
+        c.post.bev_fit = bev.then_some(few);
         let mut d = pi3det_nn::Detector::new(&c, Device::Cpu).unwrap();
         ck.load_into(&mut d, &a.join("final.safetensors")).unwrap();
         detect::detect(&d, &val_set, 2, &mut |_, _| {}).unwrap().0
     };
-    let (plain, fitted) = (with_fit(false), with_fit(true));
+    let (plain, fitted) = (with_fit(false, false), with_fit(true, false));
     let (mut boxes, mut moved) = (0, 0);
     for (f, g) in plain.iter().zip(&fitted) {
         assert_eq!(f.objects.len(), g.objects.len());
@@ -154,6 +156,20 @@ fn resume_reproduces_an_uninterrupted_run() {
         }
     }
     assert!(boxes > 0 && moved > 0, "{moved} of {boxes} boxes fitted");
+    // `[post.bev_fit]` moves long boxes only in the plane: same scores, z and heights; sizes
+    // may grow, never shrink.
+    let (mut long, mut moved) = (0, 0);
+    for (f, g) in plain.iter().zip(&with_fit(false, true)) {
+        assert_eq!(f.objects.len(), g.objects.len());
+        for (o, p) in f.objects.iter().zip(&g.objects) {
+            let (b, c) = (o.box3d, p.box3d);
+            assert_eq!((o.score, b.z, b.dz), (p.score, c.z, c.dz));
+            assert!(c.dx >= b.dx && c.dy >= b.dy, "{b:?} → {c:?}");
+            long += usize::from(b.dx.max(b.dy) >= 2.5);
+            moved += usize::from((b.x - c.x).abs() > 1e-6 || (b.y - c.y).abs() > 1e-6 || b.heading != c.heading);
+        }
+    }
+    assert!(moved > 0, "{moved} of {long} long boxes fitted");
     let out = dir.path().join("det");
     std::fs::create_dir_all(&out).unwrap();
     detect::write_jsonl(&out.join("d.jsonl"), &frames).unwrap();

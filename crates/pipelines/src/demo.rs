@@ -10,7 +10,8 @@
 //! `--reuse` keeps data and a checkpoint already in the working folder, but only those made with
 //! the same settings: the data folder's `.complete` marker records the simulation plans and seed,
 //! the checkpoint's `.trained_on` marker the data it was trained on, and the checkpoint itself its
-//! config (training seed and frame limits included).
+//! config (training seed and frame limits included; its post-processing may differ, the current
+//! one is used).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -351,10 +352,15 @@ fn run_seed(
     let final_ckpt = ckpt_dir.join("final.safetensors");
     let trained_marker = ckpt_dir.join(".trained_on");
     let cfg_train = cfg_train_of(cfg, seed);
-    // Reuse a checkpoint only when it was trained on this data with this config.
+    // Reuse a checkpoint only when it was trained on this data with this config; its `[post]`
+    // may differ (post-processing leaves the weights alone: the current one is used).
+    let same_training = |mut c: DetectorConfig| {
+        c.post = cfg_train.post.clone();
+        c.to_toml() == cfg_train.to_toml()
+    };
     let reused_checkpoint = reused_data
         && std::fs::read_to_string(&trained_marker).is_ok_and(|t| t == plan_text)
-        && checkpoint::load(&final_ckpt).is_ok_and(|c| c.config.to_toml() == cfg_train.to_toml());
+        && checkpoint::load(&final_ckpt).is_ok_and(|c| same_training(c.config));
     if !reused_checkpoint {
         let t = Instant::now();
         let _ = std::fs::remove_file(&trained_marker);
@@ -362,7 +368,7 @@ fn run_seed(
         eprintln!("training {} on {} vehicle frames (seed {seed})…", cfg.name, train.len());
         train_with_progress(
             TrainOptions {
-                config: cfg_train,
+                config: cfg_train.clone(),
                 train,
                 val: None,
                 out_dir: ckpt_dir.clone(),
@@ -377,7 +383,7 @@ fn run_seed(
         timings.train_s = t.elapsed().as_secs_f64();
     }
     let t = Instant::now();
-    let (det, _) = checkpoint::load_detector(&final_ckpt, device)?;
+    let (det, _) = checkpoint::load_detector_with_post(&final_ckpt, Some(&cfg_train.post), device)?;
     let mut rows = Vec::new();
     for p in PLATFORMS {
         let val = open_subset(&root(p, "val"), Some("val"), None, max_val)?;

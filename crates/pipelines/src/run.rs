@@ -141,9 +141,9 @@ impl LiveDetector {
         }
         let t2 = Instant::now();
         let mut dets = det.post_process(&y, 1)?;
-        let index = [p.point_index];
-        pi3det_nn::ground_fit::fit_frames(det.cfg().post.ground_fit.as_ref(), &mut dets, &index);
-        let objects = dets.first().map(|d| to_objects(det, d, &p.detector_from_lidar)).unwrap_or_default();
+        let (index, pose) = ([p.point_index], [p.detector_from_lidar]);
+        pi3det_nn::post_process::fit_to_points(&det.cfg().post, &mut dets, &index, &pose);
+        let objects = dets.first().map(|d| to_objects(det, d, &pose[0])).unwrap_or_default();
         let t3 = Instant::now();
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
         Ok((objects, StageMs { prep: ms(t0, t1), network: ms(t1, t2), post: ms(t2, t3) }))

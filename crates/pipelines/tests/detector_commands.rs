@@ -102,6 +102,14 @@ fn demo_then_detect_then_eval() {
     assert_eq!(reused(&json), (false, false));
     let cfg = std::fs::read_to_string(dir.join("pointpillars_vehicle/config.toml")).unwrap();
     assert!(cfg.contains("seed = 4"), "{cfg}");
+    // A config that differs only in post-processing keeps the checkpoint (the weights are the same).
+    let preset = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/pi3det_net_cpu.toml");
+    let text = std::fs::read_to_string(preset).unwrap();
+    let post_only = dir.join("post_only.toml");
+    std::fs::write(&post_only, text.replace("[detector.post.bev_fit]\n", "[detector.post.bev_fit]\nmin_points = 20\n"))
+        .unwrap();
+    let (_, json) = demo(dir, "2", &["--seed", "4", "--reuse", "--ka-epochs", "0", "--adapt-config", &s(&post_only)]);
+    assert_eq!(reused(&json), (true, true));
 
     let val = dir.join("data/vehicle/val");
     let det = dir.join("det");
@@ -117,6 +125,14 @@ fn demo_then_detect_then_eval() {
     assert!(!again.status.success(), "detect replaced an earlier run's output");
     assert!(String::from_utf8_lossy(&again.stderr).contains("--overwrite"));
     ok(&torch(&[&detect_args[..], &["--overwrite"]].concat()), "detect --overwrite");
+    // --post replaces the checkpoint's [post] table; a file that is not one is an error naming it.
+    let post = dir.join("post.toml");
+    std::fs::write(&post, "[post]\nscore_threshold = 0.2\n[post.ground_fit]\n[post.bev_fit]\n").unwrap();
+    ok(&torch(&[&detect_args[..], &["--overwrite", "--post", &s(&post)]].concat()), "detect --post");
+    std::fs::write(&post, "[post]\nscore_treshold = 0.2\n").unwrap();
+    let bad = torch(&[&detect_args[..], &["--overwrite", "--post", &s(&post)]].concat());
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && err.contains("post.toml") && err.contains("score_treshold"), "{err}");
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/pointpillars_cpu.toml");
     let ckpt_dir = ckpt.parent().unwrap();
     let train =

@@ -375,8 +375,9 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     if opts.stop_after == Some(Stage::Pa) {
         return Ok(report);
     }
-    let (mut det, _) = checkpoint::load_detector(&pa_path, opts.device)?;
-    // The PA checkpoint's own config may differ in schedule (`--pa-ckpt`); adapt with ours.
+    let (mut det, _) = checkpoint::load_detector_with_post(&pa_path, Some(&det_cfg.post), opts.device)?;
+    // The PA checkpoint's own config may differ in schedule and post-processing (`--pa-ckpt`);
+    // adapt with ours.
     det.prep = Arc::new(Preprocessor::new(det_cfg)?);
 
     // The target's frame transform.
@@ -442,7 +443,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     let bev = [r[0], r[1], r[3], r[4]];
     let pos = cfg.pseudo_labels.positive_score;
     let mut labels = if let (Some(_), true) = (&resume_ka, labels_model.exists()) {
-        let (m, _) = checkpoint::load_detector(&labels_model, opts.device)?;
+        let (m, _) = checkpoint::load_detector_with_post(&labels_model, Some(&det_cfg.post), opts.device)?;
         make_labels(&m, on_event)?
     } else {
         checkpoint::save(&labels_model, &det, None, &TrainState { stage: Some("ka".into()), ..Default::default() })?;

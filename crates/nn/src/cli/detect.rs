@@ -39,6 +39,14 @@ pub struct DetectArgs {
     /// NMS (`[post.ground_fit]` with its defaults), or turn the checkpoint's fit off (false).
     #[arg(long, value_name = "BOOL")]
     pub ground_fit: Option<bool>,
+    /// Fit each long box's heading and BEV centre to the points on its faces after NMS
+    /// (`[post.bev_fit]` with its defaults), or turn the checkpoint's fit off (false).
+    #[arg(long, value_name = "BOOL")]
+    pub bev_fit: Option<bool>,
+    /// A TOML file whose `[post]` table replaces the checkpoint's post-processing (thresholds,
+    /// NMS, fits); the flags above apply on top of it.
+    #[arg(long, value_name = "TOML")]
+    pub post: Option<PathBuf>,
     /// Override the z shift applied to the points (e.g. to move a drone's ground to z ≈ 0).
     #[arg(long, allow_negative_numbers = true)]
     pub shift_z: Option<f64>,
@@ -73,6 +81,9 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     }
     let device = args.device.setup(0)?;
     let mut ck = checkpoint::load(&args.ckpt)?;
+    if let Some(path) = &args.post {
+        ck.config.post = read_post(path)?;
+    }
     if let Some(t) = args.score_threshold {
         ck.config.post.score_threshold = t;
     }
@@ -92,6 +103,14 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
         }
         _ => {}
     }
+    match args.bev_fit {
+        Some(false) => ck.config.post.bev_fit = None,
+        Some(true) if ck.config.post.bev_fit.is_none() => {
+            ck.config.post.bev_fit = Some(crate::bev_fit::BevFitConfig::default())
+        }
+        _ => {}
+    }
+    ck.config.validate()?;
     let mut det = crate::Detector::new(&ck.config, device)?;
     ck.load_into(&mut det, &args.ckpt)?;
     if let Some(h) = args.vpp_height {
@@ -131,6 +150,19 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
         print!("{}", pi3det_eval::format_breakdown(&b));
     }
     Ok(())
+}
+
+/// The `[post]` table of a TOML file (`--post`).
+fn read_post(path: &std::path::Path) -> Result<crate::config::PostConfig> {
+    #[derive(serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct PostOnly {
+        post: crate::config::PostConfig,
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| NnError::io(path, e))?;
+    let t: PostOnly = toml::from_str(&text)
+        .map_err(|e| NnError::Config(format!("{}: expected one [post] table: {e}", path.display())))?;
+    Ok(t.post)
 }
 
 pub fn format_latency(l: &Latency) -> String {
