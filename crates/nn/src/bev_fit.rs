@@ -103,21 +103,29 @@ pub enum BevFitOutcome {
     Kept,
 }
 
+/// `p` on the axes at heading `(sin, cos)`.
+#[inline]
+fn project(p: [f64; 2], (s, c): (f64, f64)) -> [f64; 2] {
+    [c * p[0] + s * p[1], -s * p[0] + c * p[1]]
+}
+
+/// The per-axis minimum and maximum of the points projected on the axes at `(sin, cos)`.
+fn extent(points: &[[f64; 2]], sc: (f64, f64)) -> ([f64; 2], [f64; 2]) {
+    points.iter().fold(([f64::MAX; 2], [f64::MIN; 2]), |(lo, hi), p| {
+        let [a, b] = project(*p, sc);
+        ([lo[0].min(a), lo[1].min(b)], [hi[0].max(a), hi[1].max(b)])
+    })
+}
+
 /// The L-shape closeness of points `(u, v)` (box-centred) to the rectangle their extent spans
 /// along the axes at `theta`: higher is closer.
 fn closeness(points: &[[f64; 2]], theta: f64, floor_m: f64) -> f64 {
-    let (s, c) = theta.sin_cos();
-    let proj = |p: &[f64; 2]| (c * p[0] + s * p[1], -s * p[0] + c * p[1]);
-    let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
-    for p in points {
-        let (a, b) = proj(p);
-        lo = [lo[0].min(a), lo[1].min(b)];
-        hi = [hi[0].max(a), hi[1].max(b)];
-    }
+    let sc = theta.sin_cos();
+    let (lo, hi) = extent(points, sc);
     points
         .iter()
         .map(|p| {
-            let (a, b) = proj(p);
+            let [a, b] = project(*p, sc);
             let d1 = (hi[0] - a).min(a - lo[0]);
             let d2 = (hi[1] - b).min(b - lo[1]);
             1.0 / d1.min(d2).max(floor_m)
@@ -125,9 +133,9 @@ fn closeness(points: &[[f64; 2]], theta: f64, floor_m: f64) -> f64 {
         .sum()
 }
 
-/// The centre coordinate along one box axis: the points span `[lo, hi]`, the box is `len` long
-/// and the sensor sits at `sensor`; `pred` is the predicted centre (all box-centred, so 0).
-fn axis_centre(lo: f64, hi: f64, len: f64, sensor: f64, pred: f64) -> f64 {
+/// The centre coordinate along one box axis, relative to the predicted centre: the points span
+/// `[lo, hi]`, the box is `len` long and the sensor sits at `sensor`.
+fn axis_centre(lo: f64, hi: f64, len: f64, sensor: f64) -> f64 {
     if hi - lo >= len {
         return 0.5 * (lo + hi);
     }
@@ -137,7 +145,7 @@ fn axis_centre(lo: f64, hi: f64, len: f64, sensor: f64, pred: f64) -> f64 {
         hi - 0.5 * len
     } else {
         // Neither end faces the sensor: keep the prediction, just enough moved to hold the points.
-        pred.clamp(hi - 0.5 * len, lo + 0.5 * len)
+        0.0f64.clamp(hi - 0.5 * len, lo + 0.5 * len)
     }
 }
 
@@ -191,18 +199,12 @@ fn fit_pass(
         .max_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)))
         .map_or(b.heading, |t| t.2);
     let (s, c) = heading.sin_cos();
-    let proj = |x: f64, y: f64| (c * x + s * y, -s * x + c * y);
-    let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
-    for p in &body {
-        let (a, q) = proj(p[0], p[1]);
-        lo = [lo[0].min(a), lo[1].min(q)];
-        hi = [hi[0].max(a), hi[1].max(q)];
-    }
-    let sensor = proj(sensor_xy[0] - b.x, sensor_xy[1] - b.y);
+    let (lo, hi) = extent(&body, (s, c));
+    let sensor = project([sensor_xy[0] - b.x, sensor_xy[1] - b.y], (s, c));
     let grown = |span: f64, len: f64, pred: f64| if span > len && span - pred <= cfg.max_grow_m { span } else { len };
     let (dx, dy) = (grown(hi[0] - lo[0], b.dx, predicted_size[0]), grown(hi[1] - lo[1], b.dy, predicted_size[1]));
-    let cu = axis_centre(lo[0], hi[0], dx, sensor.0, 0.0);
-    let cv = axis_centre(lo[1], hi[1], dy, sensor.1, 0.0);
+    let cu = axis_centre(lo[0], hi[0], dx, sensor[0]);
+    let cv = axis_centre(lo[1], hi[1], dy, sensor[1]);
     Some(Box3d { x: b.x + c * cu - s * cv, y: b.y + s * cu + c * cv, dx, dy, heading: wrap_angle(heading), ..*b })
 }
 

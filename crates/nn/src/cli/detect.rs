@@ -96,20 +96,8 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     if let Some(b) = args.per_class_nms {
         ck.config.post.per_class_nms = b;
     }
-    match args.ground_fit {
-        Some(false) => ck.config.post.ground_fit = None,
-        Some(true) if ck.config.post.ground_fit.is_none() => {
-            ck.config.post.ground_fit = Some(crate::ground_fit::GroundFitConfig::default())
-        }
-        _ => {}
-    }
-    match args.bev_fit {
-        Some(false) => ck.config.post.bev_fit = None,
-        Some(true) if ck.config.post.bev_fit.is_none() => {
-            ck.config.post.bev_fit = Some(crate::bev_fit::BevFitConfig::default())
-        }
-        _ => {}
-    }
+    switch(&mut ck.config.post.ground_fit, args.ground_fit);
+    switch(&mut ck.config.post.bev_fit, args.bev_fit);
     ck.config.validate()?;
     let mut det = crate::Detector::new(&ck.config, device)?;
     ck.load_into(&mut det, &args.ckpt)?;
@@ -150,6 +138,16 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
         print!("{}", pi3det_eval::format_breakdown(&b));
     }
     Ok(())
+}
+
+/// `--ground-fit` / `--bev-fit`: off drops the fit, on adds it with its defaults unless the
+/// checkpoint (or `--post`) already has one, absent leaves it.
+fn switch<T: Default>(fit: &mut Option<T>, on: Option<bool>) {
+    match on {
+        Some(false) => *fit = None,
+        Some(true) if fit.is_none() => *fit = Some(T::default()),
+        _ => {}
+    }
 }
 
 /// The `[post]` table of a TOML file (`--post`).
