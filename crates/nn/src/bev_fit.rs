@@ -52,6 +52,8 @@ pub struct BevFitConfig {
     /// Along an axis where the points span more than the predicted size (the network's car is
     /// short), the size grows to their span by at most this much (0: sizes are kept).
     pub max_grow_m: f64,
+    /// The same limit across the box: real cars' mirrors stick out of the labelled width.
+    pub max_grow_width_m: f64,
     /// Fit passes: each gathers the body points with the previous pass's box (a box placed
     /// `margin_m` off misses part of its body in the first pass).
     pub passes: usize,
@@ -69,6 +71,7 @@ impl Default for BevFitConfig {
             closeness_floor_m: 0.02,
             max_shift_m: 0.8,
             max_grow_m: 0.6,
+            max_grow_width_m: 0.0,
             passes: 2,
         }
     }
@@ -76,15 +79,22 @@ impl Default for BevFitConfig {
 
 impl BevFitConfig {
     pub fn validate(&self) -> Result<()> {
-        let nonneg =
-            [self.min_length_m, self.margin_m, self.clearance_m, self.max_turn_rad, self.max_shift_m, self.max_grow_m];
+        let nonneg = [
+            self.min_length_m,
+            self.margin_m,
+            self.clearance_m,
+            self.max_turn_rad,
+            self.max_shift_m,
+            self.max_grow_m,
+            self.max_grow_width_m,
+        ];
         if nonneg.iter().any(|v| !(v.is_finite() && *v >= 0.0))
             || !(self.heading_step_rad.is_finite() && self.heading_step_rad > 0.0)
             || !(self.closeness_floor_m.is_finite() && self.closeness_floor_m > 0.0)
         {
             return Err(NnError::Config(
                 "post.bev_fit: heading_step_rad and closeness_floor_m must be positive; min_length_m, margin_m, \
-                 clearance_m, max_turn_rad, max_shift_m and max_grow_m finite and ≥ 0"
+                 clearance_m, max_turn_rad, max_shift_m, max_grow_m and max_grow_width_m finite and ≥ 0"
                     .into(),
             ));
         }
@@ -201,8 +211,9 @@ fn fit_pass(
     let (s, c) = heading.sin_cos();
     let (lo, hi) = extent(&body, (s, c));
     let sensor = project([sensor_xy[0] - b.x, sensor_xy[1] - b.y], (s, c));
-    let grown = |span: f64, len: f64, pred: f64| if span > len && span - pred <= cfg.max_grow_m { span } else { len };
-    let (dx, dy) = (grown(hi[0] - lo[0], b.dx, predicted_size[0]), grown(hi[1] - lo[1], b.dy, predicted_size[1]));
+    let grown = |span: f64, len: f64, pred: f64, max: f64| if span > len && span - pred <= max { span } else { len };
+    let dx = grown(hi[0] - lo[0], b.dx, predicted_size[0], cfg.max_grow_m);
+    let dy = grown(hi[1] - lo[1], b.dy, predicted_size[1], cfg.max_grow_width_m);
     let cu = axis_centre(lo[0], hi[0], dx, sensor[0]);
     let cv = axis_centre(lo[1], hi[1], dy, sensor[1]);
     Some(Box3d { x: b.x + c * cu - s * cv, y: b.y + s * cu + c * cv, dx, dy, heading: wrap_angle(heading), ..*b })

@@ -39,6 +39,10 @@ pub struct GroundFitConfig {
     pub top_min_frac: f64,
     pub top_reach_m: f64,
     pub min_top_points: usize,
+    /// The fitted top comes down at most this far below the predicted one. The highest point
+    /// bounds a top from below only: real cars' windows let the laser through and a far car's
+    /// roof goes unseen, so missing high points are no evidence of a low roof.
+    pub top_max_lower_m: f64,
     /// A fitted height below this fraction of the predicted one is rejected (the fit keeps the box).
     pub min_height_frac: f64,
 }
@@ -55,6 +59,7 @@ impl Default for GroundFitConfig {
             top_min_frac: 0.3,
             top_reach_m: 0.5,
             min_top_points: 10,
+            top_max_lower_m: 0.1,
             min_height_frac: 0.5,
         }
     }
@@ -62,11 +67,11 @@ impl Default for GroundFitConfig {
 
 impl GroundFitConfig {
     pub fn validate(&self) -> Result<()> {
-        let lengths = [self.margin_m, self.max_shift_m, self.top_inset_m, self.top_reach_m];
+        let lengths = [self.margin_m, self.max_shift_m, self.top_inset_m, self.top_reach_m, self.top_max_lower_m];
         let fracs = [self.ground_quantile, self.top_min_frac, self.min_height_frac];
         if lengths.iter().any(|v| !(v.is_finite() && *v >= 0.0)) || self.margin_m <= 0.0 {
             return Err(NnError::Config(
-                "post.ground_fit: margin_m must be positive; max_shift_m, top_inset_m and top_reach_m finite and ≥ 0"
+                "post.ground_fit: margin_m must be positive; max_shift_m, top_inset_m, top_reach_m and top_max_lower_m finite and ≥ 0"
                     .into(),
             ));
         }
@@ -200,7 +205,7 @@ pub fn fit_box(b: &Box3d, index: &PointIndex, cfg: &GroundFitConfig) -> (Box3d, 
     let (roof_points, roof_top) =
         inside.iter().filter(|z| **z > lo && **z < hi).fold((0usize, f64::MIN), |(n, m), z| (n + 1, m.max(*z)));
     let (top, outcome) = if roof_points >= cfg.min_top_points {
-        (roof_top, FitOutcome::GroundAndTop)
+        (roof_top.max(top0 - cfg.top_max_lower_m), FitOutcome::GroundAndTop)
     } else {
         (top0, FitOutcome::GroundOnly)
     };
@@ -263,12 +268,28 @@ mod tests {
     fn a_floating_short_box_is_set_on_the_ground_and_up_to_the_roof() {
         let (pts, truth) = scene(-0.3, 1.2);
         let idx = PointIndex::new(&pts, INDEX_CELL_M);
-        let predicted = Box3d { z: truth.z + 0.35, dz: truth.dz - 0.3, ..truth };
+        // Bottom 0.35 m above the ground, top 0.15 m below the roof.
+        let predicted = Box3d { z: truth.z + 0.1, dz: truth.dz - 0.5, ..truth };
         let (b, outcome) = fit_box(&predicted, &idx, &GroundFitConfig::default());
         assert_eq!(outcome, FitOutcome::GroundAndTop);
         assert!((b.bottom() - -0.3).abs() < 1e-6, "bottom {}", b.bottom());
-        assert!((b.z + 0.5 * b.dz - 1.2).abs() < 1e-6, "top {}", b.z + 0.5 * b.dz);
+        assert!((b.top() - 1.2).abs() < 1e-6, "top {}", b.top());
         assert_eq!((b.x, b.y, b.dx, b.dy, b.heading), (truth.x, truth.y, truth.dx, truth.dy, truth.heading));
+    }
+
+    #[test]
+    fn a_top_above_the_highest_point_comes_down_at_most_top_max_lower_m() {
+        let (pts, truth) = scene(-0.3, 1.2);
+        let idx = PointIndex::new(&pts, INDEX_CELL_M);
+        // The predicted top 0.3 m above the roof: the roof may be unseen, so it comes down 0.1 m only.
+        let tall = Box3d { z: truth.z + 0.15, dz: truth.dz + 0.3, ..truth };
+        let cfg = GroundFitConfig::default();
+        let (b, _) = fit_box(&tall, &idx, &cfg);
+        assert!((b.top() - (tall.top() - cfg.top_max_lower_m)).abs() < 1e-6, "top {}", b.top());
+        assert!((b.bottom() - -0.3).abs() < 1e-6, "bottom {}", b.bottom());
+        // Without the limit it comes down to the roof.
+        let (b, _) = fit_box(&tall, &idx, &GroundFitConfig { top_max_lower_m: f64::INFINITY, ..cfg });
+        assert!((b.top() - 1.2).abs() < 1e-6, "top {}", b.top());
     }
 
     #[test]
