@@ -73,12 +73,15 @@ pub struct PostConfig {
     /// Fit each long detection's heading and BEV centre to the points on its faces, after the
     /// vertical fit (absent: off).
     pub bev_fit: Option<crate::bev_fit::BevFitConfig>,
+    /// Lower the scores of small-object detections that are not upright bodies, after the fits
+    /// (absent: off).
+    pub upright_check: Option<crate::upright_check::UprightCheckConfig>,
 }
 
 impl PostConfig {
     /// Whether a post-NMS fit needs the frame's points (then the loader indexes them).
     pub fn fits_to_points(&self) -> bool {
-        self.ground_fit.is_some() || self.bev_fit.is_some()
+        self.ground_fit.is_some() || self.bev_fit.is_some() || self.upright_check.is_some()
     }
 }
 
@@ -92,6 +95,7 @@ impl Default for PostConfig {
             per_class_nms: false,
             ground_fit: None,
             bev_fit: None,
+            upright_check: None,
         }
     }
 }
@@ -340,6 +344,9 @@ impl DetectorConfig {
         if let Some(b) = &p.bev_fit {
             b.validate()?;
         }
+        if let Some(u) = &p.upright_check {
+            u.validate(&self.classes)?;
+        }
         let total_stride: i64 = self.backbone.layer_strides.iter().product::<i64>()
             * self.backbone_3d.as_ref().map_or(1, |b| b.xy_stride());
         if grid.nx as i64 % total_stride != 0 || grid.ny as i64 % total_stride != 0 {
@@ -491,6 +498,10 @@ mod tests {
         assert!(err("[post.bev_fit]\nheading_step_rad = 0.0").contains("heading_step_rad"));
         let bev = DetectorConfig::from_toml_str("[post.bev_fit]\nmin_points = 50").unwrap();
         assert_eq!(bev.post.bev_fit.map(|b| b.min_points), Some(50));
+        assert!(err("[post.upright_check]\nclasses = [\"Cyclist\"]").contains("Cyclist"));
+        assert!(err("[post.upright_check]\nscore_factor = -0.5").contains("score_factor"));
+        let up = DetectorConfig::from_toml_str("[post.upright_check]").unwrap();
+        assert_eq!(up.post.upright_check.map(|u| u.classes), Some(vec!["Pedestrian".to_string()]));
         let unknown = "[[train.augment]]\ntype = \"gt_sampling\"\nsample = [{ class = \"Cyclist\", count = 5 }]";
         assert!(err(unknown).contains("Cyclist"));
         assert!(err("[head]\ntype = \"anchor\"\nanchors = []").contains("head.anchors"));

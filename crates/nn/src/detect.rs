@@ -94,7 +94,13 @@ pub fn detect_with(
         }
         let t1 = Instant::now();
         let mut dets = det.post_process(&y, x.batch_size)?;
-        crate::post_process::fit_to_points(&det.cfg().post, &mut dets, &batch.point_index, &batch.detector_from_lidar);
+        crate::post_process::fit_to_points(
+            &det.cfg().post,
+            &det.cfg().classes,
+            &mut dets,
+            &batch.point_index,
+            &batch.detector_from_lidar,
+        );
         let t2 = Instant::now();
         lat.frames += n;
         lat.prep_ms += batch.prep_seconds * 1e3;

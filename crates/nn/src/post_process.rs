@@ -63,10 +63,13 @@ pub fn nms_detections(
 
 /// The post-NMS fits to the points that `post` asks for, in place, frame by frame: first the
 /// vertical fit ([`crate::ground_fit`]), then the planar one ([`crate::bev_fit`]), which needs
-/// the fitted bottom to tell body points from ground. Frames without a point index (prepared
-/// without a fit) are left as they are.
+/// the fitted bottom to tell body points from ground, then the upright check
+/// ([`crate::upright_check`]) on the fitted boxes, after which each frame is re-sorted by score.
+/// `classes` are the detector's class names. Frames without a point index (prepared without a
+/// fit) are left as they are.
 pub fn fit_to_points(
     post: &PostConfig,
+    classes: &[String],
     frames: &mut [Vec<Detection>],
     index: &[Option<crate::ground_fit::PointIndex>],
     detector_from_lidar: &[pi3det_geometry::Pose],
@@ -74,6 +77,9 @@ pub fn fit_to_points(
     for ((dets, idx), pose) in frames.iter_mut().zip(index).zip(detector_from_lidar) {
         let Some(idx) = idx else { continue };
         let sensor_xy = [pose.translation.x, pose.translation.y];
+        let checked: Vec<bool> = (0..classes.len())
+            .map(|c| post.upright_check.as_ref().is_some_and(|u| u.classes.contains(&classes[c])))
+            .collect();
         for d in dets.iter_mut() {
             if let Some(g) = &post.ground_fit {
                 d.box3d = crate::ground_fit::fit_box(&d.box3d, idx, g).0;
@@ -81,6 +87,14 @@ pub fn fit_to_points(
             if let Some(b) = &post.bev_fit {
                 d.box3d = crate::bev_fit::fit_box(&d.box3d, idx, sensor_xy, b).0;
             }
+            if let Some(u) = post.upright_check.as_ref().filter(|_| checked.get(d.class) == Some(&true)) {
+                if crate::upright_check::check_box(&d.box3d, idx, u).is_some() {
+                    d.score *= u.score_factor;
+                }
+            }
+        }
+        if post.upright_check.is_some() {
+            dets.sort_by(|a, b| b.score.total_cmp(&a.score));
         }
     }
 }

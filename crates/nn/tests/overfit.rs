@@ -83,6 +83,7 @@ fn config(head: HeadConfig) -> DetectorConfig {
             per_class_nms: false,
             ground_fit: None,
             bev_fit: None,
+            upright_check: None,
         },
         train: TrainConfig { lr: 0.003, weight_decay: 0.0, augment: vec![], ..TrainConfig::default() },
         ..DetectorConfig::default()

@@ -142,7 +142,7 @@ impl LiveDetector {
         let t2 = Instant::now();
         let mut dets = det.post_process(&y, 1)?;
         let (index, pose) = ([p.point_index], [p.detector_from_lidar]);
-        pi3det_nn::post_process::fit_to_points(&det.cfg().post, &mut dets, &index, &pose);
+        pi3det_nn::post_process::fit_to_points(&det.cfg().post, &det.cfg().classes, &mut dets, &index, &pose);
         let objects = dets.first().map(|d| to_objects(det, d, &pose[0])).unwrap_or_default();
         let t3 = Instant::now();
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;

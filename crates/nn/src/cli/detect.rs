@@ -43,6 +43,11 @@ pub struct DetectArgs {
     /// (`[post.bev_fit]` with its defaults), or turn the checkpoint's fit off (false).
     #[arg(long, value_name = "BOOL")]
     pub bev_fit: Option<bool>,
+    /// Lower the scores of pedestrian detections that do not stand up to a person's height or
+    /// have points right above them, after the fits (`[post.upright_check]` with its defaults),
+    /// or turn the checkpoint's check off (false).
+    #[arg(long, value_name = "BOOL")]
+    pub upright_check: Option<bool>,
     /// A TOML file whose `[post]` table replaces the checkpoint's post-processing (thresholds,
     /// NMS, fits); the flags above apply on top of it.
     #[arg(long, value_name = "TOML")]
@@ -98,6 +103,7 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     }
     switch(&mut ck.config.post.ground_fit, args.ground_fit);
     switch(&mut ck.config.post.bev_fit, args.bev_fit);
+    switch(&mut ck.config.post.upright_check, args.upright_check);
     ck.config.validate()?;
     let mut det = crate::Detector::new(&ck.config, device)?;
     ck.load_into(&mut det, &args.ckpt)?;
@@ -140,7 +146,7 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     Ok(())
 }
 
-/// `--ground-fit` / `--bev-fit`: off drops the fit, on adds it with its defaults unless the
+/// `--ground-fit` / `--bev-fit` / `--upright-check`: off drops the fit, on adds it with its defaults unless the
 /// checkpoint (or `--post`) already has one, absent leaves it.
 fn switch<T: Default>(fit: &mut Option<T>, on: Option<bool>) {
     match on {
