@@ -181,7 +181,7 @@ pub enum FitOutcome {
 /// Fits one box's vertical extent (see the module docs); the BEV footprint is not touched.
 pub fn fit_box(b: &Box3d, index: &PointIndex, cfg: &GroundFitConfig) -> (Box3d, FitOutcome) {
     let reach = b.bev_radius() + cfg.margin_m;
-    let (bottom0, top0) = (b.bottom(), b.z + 0.5 * b.dz);
+    let (bottom0, top0) = (b.bottom(), b.top());
     let mut ground_z = Vec::new();
     let mut inside = Vec::new();
     for p in index.within([b.x, b.y], reach) {

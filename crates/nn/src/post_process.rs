@@ -74,12 +74,12 @@ pub fn fit_to_points(
     index: &[Option<crate::ground_fit::PointIndex>],
     detector_from_lidar: &[pi3det_geometry::Pose],
 ) {
+    // Per class index: the upright check's settings when it checks that class.
+    let upright: Vec<_> =
+        classes.iter().map(|c| post.upright_check.as_ref().filter(|u| u.classes.contains(c))).collect();
     for ((dets, idx), pose) in frames.iter_mut().zip(index).zip(detector_from_lidar) {
         let Some(idx) = idx else { continue };
         let sensor_xy = [pose.translation.x, pose.translation.y];
-        let checked: Vec<bool> = (0..classes.len())
-            .map(|c| post.upright_check.as_ref().is_some_and(|u| u.classes.contains(&classes[c])))
-            .collect();
         for d in dets.iter_mut() {
             if let Some(g) = &post.ground_fit {
                 d.box3d = crate::ground_fit::fit_box(&d.box3d, idx, g).0;
@@ -87,7 +87,7 @@ pub fn fit_to_points(
             if let Some(b) = &post.bev_fit {
                 d.box3d = crate::bev_fit::fit_box(&d.box3d, idx, sensor_xy, b).0;
             }
-            if let Some(u) = post.upright_check.as_ref().filter(|_| checked.get(d.class) == Some(&true)) {
+            if let Some(u) = upright.get(d.class).copied().flatten() {
                 if crate::upright_check::check_box(&d.box3d, idx, u).is_some() {
                     d.score *= u.score_factor;
                 }
