@@ -15,8 +15,14 @@ use pi3det_sim::{ExportOptions, PlatformPlan, SimConfig};
 
 fn simulated(dir: &std::path::Path) -> Vec<FrameInfo> {
     let plans = [PlatformPlan { platform: Platform::Vehicle, sequences: 3, frames: 20, val_sequences: 0 }];
-    let opts =
-        ExportOptions { out: dir.to_path_buf(), seed: 11, overwrite: false, per_platform_folders: false, layout: None };
+    let opts = ExportOptions {
+        out: dir.to_path_buf(),
+        seed: 11,
+        overwrite: false,
+        per_platform_folders: false,
+        layout: None,
+        stratify_layouts: false,
+    };
     pi3det_sim::export(&SimConfig::default(), &plans, &opts, &mut |_, _| {}).unwrap();
     read_infos(&dir.join("train")).unwrap()
 }

@@ -87,8 +87,14 @@ fn data() -> Data {
         PlatformPlan { platform: Platform::Vehicle, sequences: 2, frames: 3, val_sequences: 1 },
         PlatformPlan { platform: Platform::Drone, sequences: 2, frames: 3, val_sequences: 1 },
     ];
-    let opts =
-        ExportOptions { out: root.join("data"), seed: 3, overwrite: false, per_platform_folders: true, layout: None };
+    let opts = ExportOptions {
+        out: root.join("data"),
+        seed: 3,
+        overwrite: false,
+        per_platform_folders: true,
+        layout: None,
+        stratify_layouts: false,
+    };
     pi3det_sim::export(&SimConfig::default(), &plans, &opts, &mut |_, _| {}).unwrap();
     let open = |p: &str, s: &str| Subset::all(open_split(&root.join("data").join(p).join(s), Some(s)).unwrap());
     Data { source: open("vehicle", "train"), target: open("drone", "train"), root, _dir: dir }

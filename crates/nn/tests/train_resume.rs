@@ -62,8 +62,14 @@ fn resume_reproduces_an_uninterrupted_run() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     let plans = [PlatformPlan { platform: Platform::Vehicle, sequences: 2, frames: 3, val_sequences: 1 }];
-    let opts =
-        ExportOptions { out: data.clone(), seed: 1, overwrite: false, per_platform_folders: false, layout: None };
+    let opts = ExportOptions {
+        out: data.clone(),
+        seed: 1,
+        overwrite: false,
+        per_platform_folders: false,
+        layout: None,
+        stratify_layouts: false,
+    };
     pi3det_sim::export(&SimConfig::default(), &plans, &opts, &mut |_, _| {}).unwrap();
     let train_set = Subset::all(open_split(&data.join("train"), Some("train")).unwrap());
     let val_set = Subset::all(open_split(&data.join("val"), Some("val")).unwrap());

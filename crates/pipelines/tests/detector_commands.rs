@@ -98,8 +98,13 @@ fn demo_then_detect_then_eval() {
     // …but not a checkpoint of another schedule, nor data of another seed.
     let (_, json) = demo(dir, "2", &["--seed", "3", "--reuse", "--ka-epochs", "0"]);
     assert_eq!(reused(&json), (true, false));
+    let val_info = || std::fs::read(dir.join("data/vehicle/val/pi3det_infos_val.pkl")).unwrap();
+    let val_of_seed_3 = val_info();
     let (_, json) = demo(dir, "2", &["--seed", "4", "--reuse", "--ka-epochs", "0"]);
     assert_eq!(reused(&json), (false, false));
+    // The validation split has its own seed: another training seed leaves it as it was.
+    assert_eq!(json["val_seed"], 1000);
+    assert!(val_info() == val_of_seed_3, "the validation split changed with the training seed");
     let cfg = std::fs::read_to_string(dir.join("pointpillars_vehicle/config.toml")).unwrap();
     assert!(cfg.contains("seed = 4"), "{cfg}");
     // A config that differs only in post-processing keeps the checkpoint (the weights are the same).
@@ -222,6 +227,11 @@ fn demo_over_seeds_prints_mean_and_std() {
         assert!(dir.join(format!("seed_{seed}/pointpillars_vehicle/final.safetensors")).is_file());
         assert!(dir.join(format!("seed_{seed}/eval_drone.json")).is_file());
     }
+    let info = |seed: u64, split: &str| {
+        std::fs::read(dir.join(format!("seed_{seed}/data/vehicle/{split}/pi3det_infos_{split}.pkl"))).unwrap()
+    };
+    assert!(info(0, "val") == info(1, "val"), "every seed is validated on the same frames");
+    assert!(info(0, "train") != info(1, "train"), "each seed trains on its own frames");
     let summary = json["summary"].as_array().unwrap();
     assert_eq!(summary.len(), 3);
     let car = &summary[0]["classes"][0];

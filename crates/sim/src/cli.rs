@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use pi3det_data::Platform;
 
 use crate::bench::{self, BenchOptions};
-use crate::export::{default_val_sequences, export, pi3det_mini, ExportOptions, PlatformPlan};
+use crate::export::{default_val_sequences, export, pi3det_mini, stratified_layouts, ExportOptions, PlatformPlan};
 use crate::preview::{render_bev, PreviewOptions};
 use crate::scene::Layout;
 use crate::sensor::SensorPreset;
@@ -94,6 +94,10 @@ pub struct SimulateArgs {
     /// Force one layout for every sequence (default: drawn per sequence by the platform's weights).
     #[arg(long, value_enum)]
     pub layout: Option<Layout>,
+    /// Give each split's sequences layouts in the platform's proportions, in a fixed order,
+    /// instead of drawing each (a small val split then holds the intended mix whatever the seed).
+    #[arg(long, conflicts_with = "layout")]
+    pub stratify_layouts: bool,
     /// Write a bird's-eye PNG of one frame of the first sequence (with a preset: one per platform,
     /// named `<stem>_<platform>.png`).
     #[arg(long)]
@@ -155,6 +159,7 @@ pub fn run(args: &SimulateArgs) -> Result<(), SimError> {
         overwrite: args.overwrite,
         per_platform_folders: args.preset.is_some(),
         layout: args.layout,
+        stratify_layouts: args.stratify_layouts,
     };
     let total: u64 = plans.iter().map(|p| u64::from(p.sequences) * u64::from(p.frames)).sum();
     let bar = if args.no_progress { indicatif::ProgressBar::hidden() } else { indicatif::ProgressBar::new(total) };
@@ -197,7 +202,11 @@ pub fn run(args: &SimulateArgs) -> Result<(), SimError> {
                 index: 0,
                 frames: plan.frames,
                 seed: args.seed,
-                layout: args.layout,
+                // Sequence 0 is first in its split: with stratified layouts it has the first one.
+                layout: match (args.layout, args.stratify_layouts) {
+                    (None, true) => Some(stratified_layouts(cfg.platform(plan.platform)?.layout_weights, 1)[0]),
+                    (l, _) => l,
+                },
             };
             let seq = Sequence::generate(&cfg, spec)?;
             let f = args.preview_frame.min(seq.len().saturating_sub(1));

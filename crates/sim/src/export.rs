@@ -63,7 +63,12 @@ pub struct ExportOptions {
     pub overwrite: bool,
     /// Put each platform in its own subfolder (`out/<platform>/<split>`); otherwise `out/<split>`.
     pub per_platform_folders: bool,
+    /// Force one layout on every sequence (wins over `stratify_layouts`).
     pub layout: Option<Layout>,
+    /// Give each split's sequences layouts in the platform's proportions, in a fixed interleaved
+    /// order ([`stratified_layouts`]), instead of drawing each: a small validation split then holds
+    /// the intended mix whatever the seed (12 drawn vehicle sequences held 2 to 6 suburban ones).
+    pub stratify_layouts: bool,
 }
 
 /// What was written for one platform and split.
@@ -111,63 +116,138 @@ pub fn export(
     opts: &ExportOptions,
     on_frame: &mut dyn FnMut(&Sequence, &SimFrame),
 ) -> Result<ExportReport, SimError> {
-    cfg.validate()?;
     let mut report = ExportReport::default();
     for plan in plans {
-        cfg.platform(plan.platform)?;
-        if plan.frames > 9999 {
-            return Err(SimError::invalid("at most 9999 frames per sequence"));
-        }
-        if plan.val_sequences > plan.sequences {
-            return Err(SimError::invalid("more validation sequences than sequences"));
-        }
         for split in ["train", "val"] {
-            let indices: Vec<u32> = (0..plan.sequences).filter(|&i| plan.split_of(i) == split).collect();
-            if indices.is_empty() {
-                continue;
-            }
-            let root = split_root(opts, plan.platform, split);
-            let mut writer = Pi3detWriter::create(&root, split, opts.overwrite)?;
-            let mut written = WrittenSplit {
-                platform: plan.platform,
-                split: split.to_string(),
-                root: root.clone(),
-                info_file: PathBuf::new(),
-                sequences: Vec::new(),
-                frames: 0,
-                boxes: 0,
-                points: 0,
-            };
-            for index in indices {
-                let spec = SequenceSpec {
-                    platform: plan.platform,
-                    index,
-                    frames: plan.frames,
-                    seed: opts.seed,
-                    layout: opts.layout,
-                };
-                let seq = Sequence::generate(cfg, spec)?;
-                tracing::info!(
-                    "{}: {} frames, {} actors, {} static objects",
-                    seq.name,
-                    seq.len(),
-                    seq.actor_count(),
-                    seq.scene.object_count()
-                );
-                for f in 0..seq.len() {
-                    let sim = seq.render(f);
-                    let frame = sim.to_frame(&frame_id(index, f), plan.platform, &seq.name);
-                    writer.write_frame(&frame)?;
-                    written.frames += 1;
-                    written.boxes += sim.objects.len();
-                    written.points += sim.points.len();
-                    on_frame(&seq, &sim);
-                }
-                written.sequences.push(seq.name.clone());
-            }
-            written.info_file = writer.finish()?;
-            report.splits.push(written);
+            report.splits.extend(export_split(cfg, plan, split, opts, on_frame)?);
         }
     }
     Ok(report)
+}
+
+/// Renders and writes one split of a plan (`None` when the plan puts no sequence in it). A
+/// sequence depends only on the seed, the platform and its index, so the two splits of a plan can
+/// be written with different seeds: a validation split that stays fixed while the training seed
+/// changes.
+pub fn export_split(
+    cfg: &SimConfig,
+    plan: &PlatformPlan,
+    split: &str,
+    opts: &ExportOptions,
+    on_frame: &mut dyn FnMut(&Sequence, &SimFrame),
+) -> Result<Option<WrittenSplit>, SimError> {
+    cfg.validate()?;
+    let pc = cfg.platform(plan.platform)?;
+    if plan.frames > 9999 {
+        return Err(SimError::invalid("at most 9999 frames per sequence"));
+    }
+    if plan.val_sequences > plan.sequences {
+        return Err(SimError::invalid("more validation sequences than sequences"));
+    }
+    if split != "train" && split != "val" {
+        return Err(SimError::invalid(format!("split must be train or val, not {split:?}")));
+    }
+    let indices: Vec<u32> = (0..plan.sequences).filter(|&i| plan.split_of(i) == split).collect();
+    if indices.is_empty() {
+        return Ok(None);
+    }
+    let layouts: Vec<Option<Layout>> = match (opts.layout, opts.stratify_layouts) {
+        (Some(l), _) => vec![Some(l); indices.len()],
+        (None, true) => stratified_layouts(pc.layout_weights, indices.len()).into_iter().map(Some).collect(),
+        (None, false) => vec![None; indices.len()],
+    };
+    let root = split_root(opts, plan.platform, split);
+    let mut writer = Pi3detWriter::create(&root, split, opts.overwrite)?;
+    let mut written = WrittenSplit {
+        platform: plan.platform,
+        split: split.to_string(),
+        root: root.clone(),
+        info_file: PathBuf::new(),
+        sequences: Vec::new(),
+        frames: 0,
+        boxes: 0,
+        points: 0,
+    };
+    for (index, layout) in indices.into_iter().zip(layouts) {
+        let spec = SequenceSpec { platform: plan.platform, index, frames: plan.frames, seed: opts.seed, layout };
+        let seq = Sequence::generate(cfg, spec)?;
+        tracing::info!(
+            "{}: {} frames, {} actors, {} static objects",
+            seq.name,
+            seq.len(),
+            seq.actor_count(),
+            seq.scene.object_count()
+        );
+        for f in 0..seq.len() {
+            let sim = seq.render(f);
+            let frame = sim.to_frame(&frame_id(index, f), plan.platform, &seq.name);
+            writer.write_frame(&frame)?;
+            written.frames += 1;
+            written.boxes += sim.objects.len();
+            written.points += sim.points.len();
+            on_frame(&seq, &sim);
+        }
+        written.sequences.push(seq.name.clone());
+    }
+    written.info_file = writer.finish()?;
+    Ok(Some(written))
+}
+
+/// `n` layouts in the proportions of `weights` (urban, suburban, park), interleaved by smooth
+/// weighted round robin: every prefix is within one sequence of its share, so a split truncated to
+/// its first sequences keeps the mix too.
+pub fn stratified_layouts(weights: [f64; 3], n: usize) -> Vec<Layout> {
+    let total: f64 = weights.iter().map(|w| w.max(0.0)).sum();
+    let share = weights.map(|w| if total > 0.0 { w.max(0.0) / total } else { 1.0 / 3.0 });
+    let mut credit = [0.0f64; 3];
+    (0..n)
+        .map(|_| {
+            for (c, s) in credit.iter_mut().zip(share) {
+                *c += s;
+            }
+            // Ties go to the earlier layout; a zero share never wins over a positive one.
+            let k = (0..3).filter(|&k| share[k] > 0.0).fold(None, |best: Option<usize>, k| match best {
+                Some(b) if credit[b] >= credit[k] => Some(b),
+                _ => Some(k),
+            });
+            let k = k.unwrap_or(0);
+            credit[k] -= 1.0;
+            Layout::ALL[k]
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn counts(ls: &[Layout]) -> [usize; 3] {
+        let mut c = [0; 3];
+        for l in ls {
+            c[Layout::ALL.iter().position(|a| a == l).unwrap()] += 1;
+        }
+        c
+    }
+
+    #[test]
+    fn stratified_layouts_keep_the_weights_in_every_prefix() {
+        for weights in [[0.55, 0.45, 0.0], [0.45, 0.35, 0.2], [0.2, 0.4, 0.4], [1.0, 0.0, 0.0]] {
+            let total: f64 = weights.iter().sum();
+            let all = stratified_layouts(weights, 40);
+            for n in 1..=all.len() {
+                let c = counts(&all[..n]);
+                for k in 0..3 {
+                    let want = n as f64 * weights[k] / total;
+                    assert!((c[k] as f64 - want).abs() <= 1.0, "{weights:?}, first {n}: {c:?} vs {want}");
+                    if weights[k] == 0.0 {
+                        assert_eq!(c[k], 0, "a layout of weight 0 never appears");
+                    }
+                }
+            }
+            assert_eq!(stratified_layouts(weights, 40), all, "deterministic");
+        }
+        // The vehicle's 12 validation sequences: 7 urban, 5 suburban, never 2 or 6 suburban.
+        assert_eq!(counts(&stratified_layouts([0.55, 0.45, 0.0], 12)), [7, 5, 0]);
+        assert!(stratified_layouts([0.0; 3], 3).len() == 3, "degenerate weights still give n layouts");
+    }
 }

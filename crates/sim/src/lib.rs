@@ -34,7 +34,7 @@ pub mod terrain;
 
 pub use config::{LabelConfig, SimConfig};
 pub use error::SimError;
-pub use export::{export, pi3det_mini, ExportOptions, ExportReport, PlatformPlan};
+pub use export::{export, export_split, pi3det_mini, stratified_layouts, ExportOptions, ExportReport, PlatformPlan};
 pub use scene::Layout;
 pub use sensor::{SensorConfig, SensorPreset};
 pub use sequence::{Sequence, SequenceSpec, SimFrame};

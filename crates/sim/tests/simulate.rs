@@ -32,8 +32,14 @@ fn files_under(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
 }
 
 fn export_with_threads(cfg: &SimConfig, plans: &[PlatformPlan], out: &Path, seed: u64, threads: usize) {
-    let opts =
-        ExportOptions { out: out.to_path_buf(), seed, overwrite: false, per_platform_folders: true, layout: None };
+    let opts = ExportOptions {
+        out: out.to_path_buf(),
+        seed,
+        overwrite: false,
+        per_platform_folders: true,
+        layout: None,
+        stratify_layouts: false,
+    };
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
     pool.install(|| export(cfg, plans, &opts, &mut |_, _| {})).unwrap();
 }
@@ -78,6 +84,7 @@ fn stored_boxes_hold_their_stored_point_counts() {
         overwrite: false,
         per_platform_folders: true,
         layout: None,
+        stratify_layouts: false,
     };
     let report = export(&cfg, &plans, &opts, &mut |_, _| {}).unwrap();
     assert_eq!(report.splits.len(), 6);
@@ -219,4 +226,50 @@ fn the_three_cross_platform_discrepancies() {
         "vehicle relative pitch {}",
         v.rel_pitch_median
     );
+}
+
+#[test]
+fn splits_written_with_their_own_seeds_match_whole_exports_and_stratified_splits_hold_the_mix() {
+    use pi3det_sim::{export_split, stratified_layouts};
+    let cfg = small_config();
+    let plan = PlatformPlan { platform: Platform::Vehicle, sequences: 5, frames: 2, val_sequences: 3 };
+    let dir = tempfile::tempdir().unwrap();
+    let whole = |seed, name: &str| {
+        let out = dir.path().join(name);
+        export_with_threads(&cfg, &[plan], &out, seed, 1);
+        files_under(&out)
+    };
+    let (seed_4, seed_9) = (whole(4, "s4"), whole(9, "s9"));
+    // Train from seed 4, val from seed 9, written split by split into one folder.
+    let mixed = dir.path().join("mixed");
+    let opts = |seed| ExportOptions {
+        out: mixed.clone(),
+        seed,
+        overwrite: false,
+        per_platform_folders: true,
+        layout: None,
+        stratify_layouts: false,
+    };
+    let train = export_split(&cfg, &plan, "train", &opts(4), &mut |_, _| {}).unwrap().unwrap();
+    let val = export_split(&cfg, &plan, "val", &opts(9), &mut |_, _| {}).unwrap().unwrap();
+    assert_eq!((train.frames, val.frames), (4, 6));
+    let m = files_under(&mixed);
+    for (path, bytes) in &m {
+        let from = if path.starts_with("vehicle/train") { &seed_4 } else { &seed_9 };
+        assert!(from.get(path) == Some(bytes), "{} differs from the whole export of its seed", path.display());
+    }
+    assert_eq!(m.len(), seed_4.len());
+    assert!(export_split(&cfg, &plan, "test", &opts(4), &mut |_, _| {}).is_err(), "unknown split");
+    let none = PlatformPlan { val_sequences: 0, ..plan };
+    assert!(export_split(&cfg, &none, "val", &opts(4), &mut |_, _| {}).unwrap().is_none());
+
+    // Stratified: the val sequences' layouts follow the fixed schedule, whatever the seed.
+    let want: Vec<String> =
+        stratified_layouts(cfg.vehicle.layout_weights, 3).iter().map(|l| l.as_str().to_string()).collect();
+    for seed in [1, 2] {
+        let o = ExportOptions { out: dir.path().join(format!("strat{seed}")), stratify_layouts: true, ..opts(seed) };
+        let val = export_split(&cfg, &plan, "val", &o, &mut |_, _| {}).unwrap().unwrap();
+        let got: Vec<String> = val.sequences.iter().map(|s| s.split('_').nth(1).unwrap().to_string()).collect();
+        assert_eq!(got, want, "seed {seed}: {:?}", val.sequences);
+    }
 }

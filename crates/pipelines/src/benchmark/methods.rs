@@ -128,6 +128,7 @@ impl Ctx<'_> {
                 overwrite: true,
                 per_platform_folders: true,
                 layout: None,
+                stratify_layouts: false,
             };
             pi3det_sim::export(&cfg, &[plan], &opts, &mut |_, _| {}).context("simulation")?;
             Ok(())
