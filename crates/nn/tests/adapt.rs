@@ -111,6 +111,7 @@ fn options(cfg: &AdaptConfig, d: &Data, out: &Path) -> AdaptOptions {
         pa_ckpt: None,
         resume: false,
         stop_after: Some(Stage::Ka),
+        source_only: None,
     }
 }
 

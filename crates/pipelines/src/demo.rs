@@ -430,6 +430,8 @@ fn run_seed(
                     std::fs::remove_dir_all(&out).with_context(|| out.display().to_string())?;
                 }
                 eprintln!("Pi3DET-Net: vehicle → {} ({} KA epochs)…", p.as_str(), a.ka.epochs);
+                // The same model on the same val frames was scored above: not evaluated again.
+                let source_only = rows.iter().find(|r| r.platform == p.as_str()).map(|r| r.summary.clone());
                 let r = adapt_with_progress(
                     AdaptOptions {
                         config: a.clone(),
@@ -441,6 +443,7 @@ fn run_seed(
                         pa_ckpt: Some(final_ckpt.clone()),
                         resume: false,
                         stop_after: None,
+                        source_only,
                     },
                     false,
                 )?;

@@ -82,6 +82,14 @@ fn demo_then_detect_then_eval() {
     for platform in ["drone", "quadruped"] {
         assert!(out.contains(&format!("| {platform} + Pi3DET-Net |")), "no adapted {platform} row in\n{out}");
         assert!(dir.join(format!("pi3det_net_{platform}/adapt.json")).is_file());
+        // The source-only row is the demo's own evaluation of the same model, not a second one.
+        let adapt: Value =
+            serde_json::from_slice(&std::fs::read(dir.join(format!("pi3det_net_{platform}/adapt.json"))).unwrap())
+                .unwrap();
+        let row = json["seeds"][0]["rows"].as_array().unwrap().iter().find(|r| r["platform"] == platform).unwrap();
+        assert_eq!(adapt["source_only"], row["summary"], "{platform}");
+        assert!(!dir.join(format!("pi3det_net_{platform}/val_source_only.jsonl")).exists());
+        assert!(dir.join(format!("pi3det_net_{platform}/val_source_only_vpp.jsonl")).is_file());
     }
     assert_eq!(json["seeds"][0]["rows"][0]["frames"], 4, "one validation sequence of four frames");
     assert_eq!(reused(&json), (false, false));

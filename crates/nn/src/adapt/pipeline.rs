@@ -2,7 +2,8 @@
 //! training frames → Knowledge-Adaptation, then the source-only (PA) model and the adapted one
 //! evaluated on the target's validation frames; `adapt.json` and `adapt.md` in the output folder.
 //!
-//! Layout of `--out`: `adapt_config.toml`; `val_source_only[_vpp].jsonl`, `val_adapted.jsonl`
+//! Layout of `--out`: `adapt_config.toml`; `val_source_only[_vpp].jsonl` (the first missing when
+//! the caller passed the source-only score in), `val_adapted.jsonl`
 //! (the evaluated detections, for `pi3det eval --breakdown`); `pa/` (the training run of PA: checkpoints with stage
 //! `pa`, `final.safetensors`); `pseudo_labels.jsonl` (the labels KA starts from, detection format);
 //! `ka/` (epoch checkpoints with stage `ka` and optimiser moments, `labels_model.safetensors` —
@@ -180,6 +181,9 @@ pub struct AdaptOptions {
     /// Continue a run that stopped in `out_dir`.
     pub resume: bool,
     pub stop_after: Option<Stage>,
+    /// The PA model's AP on `val`, when the caller has already measured it (the demo has): taken
+    /// as the source-only row instead of evaluating the same model on the same frames again.
+    pub source_only: Option<ApSummary>,
 }
 
 /// Progress events.
@@ -418,7 +422,10 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
 
     if let Some(v) = val {
         on_event(AdaptEvent::Stage("evaluating the source-only model"));
-        report.source_only = Some(evaluate(&det, plain_prep.clone(), v, &out.join("val_source_only.jsonl"))?);
+        report.source_only = match &opts.source_only {
+            Some(s) => Some(s.clone()),
+            None => Some(evaluate(&det, plain_prep.clone(), v, &out.join("val_source_only.jsonl"))?),
+        };
         if vpp.is_some() {
             let o = out.join("val_source_only_vpp.jsonl");
             report.source_only_vpp = Some(evaluate(&det, Arc::new(target_prep(false)?), v, &o)?);

@@ -163,6 +163,7 @@ pub fn run_adapt(args: &AdaptArgs) -> Result<AdaptReport> {
         pa_ckpt: args.pa_ckpt.clone(),
         resume: args.resume,
         stop_after: args.stop_after,
+        source_only: None,
     };
     let report = adapt_with_progress(opts, false)?;
     println!("{}", pipeline::markdown(&report, &det_cfg));

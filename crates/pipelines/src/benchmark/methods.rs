@@ -539,6 +539,7 @@ pub fn run_cell(ctx: &Ctx<'_>, cell: &Cell, dir: &Path, log: &mut Log) -> Result
                     pa_ckpt: Some(pa),
                     resume: false,
                     stop_after: None,
+                    source_only: None,
                 },
                 &mut |e| match e {
                     adapt::AdaptEvent::Message(m) => msgs.push(m),
