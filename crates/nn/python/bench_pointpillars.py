@@ -3,7 +3,7 @@ backbone, anchor head), loss (sigmoid focal, smooth-L1 with sin difference, dire
 cross-entropy) and AdamW step as pi3det-nn, built with the installed torch and timed on the very
 inputs pi3det-nn exported (features, cells, targets). Prints one JSON object.
 
-    python bench_pointpillars.py EXCHANGE_DIR [--iters N] [--warmup N] [--threads N]
+    python bench_pointpillars.py EXCHANGE_DIR [--iters N] [--warmup N] [--threads N] [--device cuda]
 """
 
 import argparse
@@ -89,7 +89,7 @@ class PointPillars(nn.Module):
         for l in self.pfn:
             x = l(x)
         c = x.shape[1]
-        canvas = torch.zeros(batch_size * self.ny * self.nx, c, dtype=x.dtype)
+        canvas = torch.zeros(batch_size * self.ny * self.nx, c, dtype=x.dtype, device=x.device)
         bev = canvas.index_copy(0, cells, x).view(batch_size, self.ny, self.nx, c).permute(0, 3, 1, 2)
         if not self.channels_last:
             bev = bev.contiguous()
@@ -105,7 +105,7 @@ def loss_fn(out, t, batch_size, w):
     pos = (labels > 0).float()
     cared = (labels >= 0).float()
     cls_w = cared / pos.sum(1, keepdim=True).clamp(min=1.0)
-    one_hot = torch.zeros(b, n, c + 1).scatter_(-1, labels.clamp(min=0).unsqueeze(-1), 1.0)[..., 1:]
+    one_hot = torch.zeros(b, n, c + 1, device=cls.device).scatter_(-1, labels.clamp(min=0).unsqueeze(-1), 1.0)[..., 1:]
     p = torch.sigmoid(cls)
     alpha_w = one_hot * 0.25 + (1 - one_hot) * 0.75
     pt = one_hot * (1 - p) + (1 - one_hot) * p
@@ -125,13 +125,17 @@ def loss_fn(out, t, batch_size, w):
     return l_cls + l_loc + l_dir
 
 
-def timed(fn, iters, warmup):
+def timed(fn, iters, warmup, device):
+    # CUDA work is asynchronous: each timing ends when the device is done, as on the Rust side.
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     for _ in range(warmup):
         fn()
+    sync()
     ts = []
     for _ in range(iters):
         t = time.perf_counter()
         fn()
+        sync()
         ts.append(time.perf_counter() - t)
     ts.sort()
     return {"mean_ms": 1e3 * sum(ts) / len(ts), "median_ms": 1e3 * ts[len(ts) // 2], "min_ms": 1e3 * ts[0]}
@@ -144,19 +148,21 @@ def main():
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--layout", choices=["same", "nchw", "channels_last"], default="same", help="BEV memory layout (same: as pi3det-nn)")
+    ap.add_argument("--device", default="cpu", help="cpu or cuda (as pi3det-nn's --device)")
     args = ap.parse_args()
+    dev = torch.device(args.device)
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     m = json.load(open(os.path.join(args.dir, "meta.json")))
     if args.layout != "same":
         m["channels_last"] = args.layout == "channels_last"
-    net = PointPillars(m)
+    net = PointPillars(m).to(dev)
     res = {"torch": torch.__version__, "threads": torch.get_num_threads(), "channels_last": net.channels_last, "parameters": sum(p.numel() for p in net.parameters())}
 
     tr = m["train"]
     b = tr["batch_size"]
-    x = load(args.dir, "train_features", np.float32, (tr["pillars"], m["max_points"], 10))
-    cells = load(args.dir, "train_cells", np.int64, (tr["pillars"],))
+    x = load(args.dir, "train_features", np.float32, (tr["pillars"], m["max_points"], 10)).to(dev)
+    cells = load(args.dir, "train_cells", np.int64, (tr["pillars"],)).to(dev)
     t = {
         "labels": load(args.dir, "train_labels", np.int64, (b, m["num_anchors"])),
         "pos_index": load(args.dir, "train_pos_index", np.int64, (tr["positives"],)),
@@ -164,6 +170,7 @@ def main():
         "pos_dir": load(args.dir, "train_pos_dir", np.int64, (tr["positives"],)),
         "pos_weight": load(args.dir, "train_pos_weight", np.float32, (tr["positives"],)),
     }
+    t = {k: v.to(dev) for k, v in t.items()}
     opt = torch.optim.AdamW(net.parameters(), lr=1e-3, betas=(0.9, 0.99), weight_decay=0.01)
     w = m["loss_weights"]
 
@@ -176,19 +183,19 @@ def main():
         return loss
 
     net.train()
-    res["train_step"] = timed(step, args.iters, args.warmup)
+    res["train_step"] = timed(step, args.iters, args.warmup, dev)
     res["train_loss"] = float(step())
 
     inf = m["infer"]
-    xi = load(args.dir, "infer_features", np.float32, (inf["pillars"], m["max_points"], 10))
-    ci = load(args.dir, "infer_cells", np.int64, (inf["pillars"],))
+    xi = load(args.dir, "infer_features", np.float32, (inf["pillars"], m["max_points"], 10)).to(dev)
+    ci = load(args.dir, "infer_cells", np.int64, (inf["pillars"],)).to(dev)
     net.eval()
 
     def fwd():
         with torch.inference_mode():
             return net(xi, ci, 1)
 
-    res["forward"] = timed(fwd, args.iters, args.warmup)
+    res["forward"] = timed(fwd, args.iters, args.warmup, dev)
     print(json.dumps(res))
 
 

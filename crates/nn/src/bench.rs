@@ -251,6 +251,8 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
             &opts.warmup.to_string(),
             "--threads",
             &opts.threads.to_string(),
+            "--device",
+            if opts.device.is_cuda() { "cuda" } else { "cpu" },
         ])
         .env("OMP_NUM_THREADS", opts.threads.to_string())
         .output()

@@ -39,6 +39,9 @@ pub struct BenchNnArgs {
     pub device: DeviceArgs,
 }
 
+/// The PyTorch side, `crates/nn/python/bench_pointpillars.py`.
+const TORCH_SCRIPT: &str = include_str!("../../python/bench_pointpillars.py");
+
 fn repo_path(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(rel)
 }
@@ -62,6 +65,7 @@ pub fn run_bench_nn(args: &BenchNnArgs, default_frames: &mut dyn FnMut(usize) ->
     };
     let prep = crate::preprocess::Preprocessor::new(&cfg)?;
     let samples = frames.iter().map(|f| prep.sample(f, 1)).collect();
+    let exchange = std::env::temp_dir().join(format!("pi3det-bench-nn-{}", std::process::id()));
     let python = if args.no_torch {
         None
     } else {
@@ -73,9 +77,13 @@ pub fn run_bench_nn(args: &BenchNnArgs, default_frames: &mut dyn FnMut(usize) ->
                 PathBuf::from("python3")
             }
         });
-        Some((py, repo_path("crates/nn/python/bench_pointpillars.py")))
+        // The script travels inside the binary, so a binary run away from its checkout (on a
+        // GPU machine, say) still has it.
+        std::fs::create_dir_all(&exchange).map_err(|e| NnError::io(&exchange, e))?;
+        let script = exchange.join("bench_pointpillars.py");
+        std::fs::write(&script, TORCH_SCRIPT).map_err(|e| NnError::io(&script, e))?;
+        Some((py, script))
     };
-    let exchange = std::env::temp_dir().join(format!("pi3det-bench-nn-{}", std::process::id()));
     let report = crate::bench::run(&crate::bench::BenchOptions {
         config: cfg,
         samples,
