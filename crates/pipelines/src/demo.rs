@@ -462,13 +462,11 @@ fn run_seed(
 
 /// Simulates one split of every plan into `data/<platform>/<split>` (replacing what is there).
 fn simulate_split(data: &Path, plans: &[PlatformPlan], split: &str, seed: u64, stratify: bool) -> Result<()> {
-    let counts: Vec<String> = plans
-        .iter()
-        .map(|p| {
-            let n = (0..p.sequences).filter(|&i| p.split_of(i) == split).count();
-            format!("{n} {}", p.platform.as_str())
-        })
-        .collect();
+    // Sequences of each plan that fall in this split.
+    let in_split: Vec<u64> =
+        plans.iter().map(|p| (0..p.sequences).filter(|&i| p.split_of(i) == split).count() as u64).collect();
+    let counts: Vec<String> =
+        plans.iter().zip(&in_split).map(|(p, n)| format!("{n} {}", p.platform.as_str())).collect();
     let frames = plans.first().map_or(0, |p| p.frames);
     eprintln!(
         "simulating {split}: {} sequences of {frames} frames (seed {seed}{})…",
@@ -483,10 +481,7 @@ fn simulate_split(data: &Path, plans: &[PlatformPlan], split: &str, seed: u64, s
         layout: None,
         stratify_layouts: stratify,
     };
-    let total: u64 = plans
-        .iter()
-        .map(|p| (0..p.sequences).filter(|&i| p.split_of(i) == split).count() as u64 * u64::from(p.frames))
-        .sum();
+    let total: u64 = plans.iter().zip(&in_split).map(|(p, n)| n * u64::from(p.frames)).sum();
     let bar = ProgressBar::new(total).with_style(progress_style(&format!(
         "simulate {split} [{{bar:30}}] {{pos}}/{{len}} frames {{elapsed}}<{{eta}}"
     )));
