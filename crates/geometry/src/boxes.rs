@@ -140,9 +140,10 @@ impl Box3d {
         self
     }
 
-    /// Radius of the BEV circumscribed circle.
+    /// Radius of the BEV circumscribed circle (not `hypot`: libm's correctly rounded one was
+    /// the largest single cost of rotated NMS; box sizes cannot overflow the squares).
     pub fn bev_radius(&self) -> f64 {
-        0.5 * self.dx.hypot(self.dy)
+        0.5 * (self.dx * self.dx + self.dy * self.dy).sqrt()
     }
 }
 

@@ -5,14 +5,40 @@ use rayon::prelude::*;
 use crate::boxes::Box3d;
 use crate::polygon::quad_intersection_area;
 
+/// A box's bird's-eye-view footprint with what every pairwise test needs (corners, circumradius,
+/// area) computed once: NMS and IoU matrices meet each box many times, and the corners' sin/cos
+/// and the radius were most of a pair's cost when the circles do not overlap.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BevFootprint {
+    pub x: f64,
+    pub y: f64,
+    pub radius: f64,
+    pub area: f64,
+    pub corners: [[f64; 2]; 4],
+}
+
+impl BevFootprint {
+    pub fn new(b: &Box3d) -> Self {
+        Self { x: b.x, y: b.y, radius: b.bev_radius(), area: b.dx * b.dy, corners: b.bev_corners() }
+    }
+
+    /// Area of the intersection with `other` (0 when the circumscribed circles are apart).
+    pub fn intersection(&self, other: &Self) -> f64 {
+        let (dx, dy, r) = (self.x - other.x, self.y - other.y, self.radius + other.radius);
+        if dx * dx + dy * dy >= r * r {
+            return 0.0;
+        }
+        quad_intersection_area(&self.corners, &other.corners)
+    }
+
+    pub fn iou(&self, other: &Self) -> f64 {
+        ratio(self.intersection(other), self.area, other.area)
+    }
+}
+
 /// Area of the BEV (x–y) intersection of two boxes.
 pub fn bev_intersection(a: &Box3d, b: &Box3d) -> f64 {
-    let (ra, rb) = (a.bev_radius(), b.bev_radius());
-    let (dx, dy) = (a.x - b.x, a.y - b.y);
-    if dx * dx + dy * dy >= (ra + rb) * (ra + rb) {
-        return 0.0;
-    }
-    quad_intersection_area(&a.bev_corners(), &b.bev_corners())
+    BevFootprint::new(a).intersection(&BevFootprint::new(b))
 }
 
 fn ratio(inter: f64, area_a: f64, area_b: f64) -> f64 {
@@ -26,7 +52,7 @@ fn ratio(inter: f64, area_a: f64, area_b: f64) -> f64 {
 
 /// Rotated bird's-eye-view IoU.
 pub fn bev_iou(a: &Box3d, b: &Box3d) -> f64 {
-    ratio(bev_intersection(a, b), a.dx * a.dy, b.dx * b.dy)
+    BevFootprint::new(a).iou(&BevFootprint::new(b))
 }
 
 /// Vertical overlap of the two boxes' height ranges (0 when they only touch or are apart).
@@ -36,11 +62,15 @@ pub fn height_overlap(a: &Box3d, b: &Box3d) -> f64 {
 
 /// 3D IoU of upright boxes: BEV intersection × height overlap over the union of volumes.
 pub fn iou_3d(a: &Box3d, b: &Box3d) -> f64 {
+    iou_3d_with(a, &BevFootprint::new(a), b, &BevFootprint::new(b))
+}
+
+fn iou_3d_with(a: &Box3d, fa: &BevFootprint, b: &Box3d, fb: &BevFootprint) -> f64 {
     let h = height_overlap(a, b);
     if h <= 0.0 {
         return 0.0;
     }
-    ratio(bev_intersection(a, b) * h, a.volume(), b.volume())
+    ratio(fa.intersection(fb) * h, a.volume(), b.volume())
 }
 
 /// A dense row-major matrix of pairwise values (rows: first box set, cols: second).
@@ -62,7 +92,7 @@ impl IouMatrix {
     }
 
     /// Fills the matrix with `f(a[i], b[j])`, rows in parallel.
-    pub fn pairwise(a: &[Box3d], b: &[Box3d], f: impl Fn(&Box3d, &Box3d) -> f64 + Sync) -> Self {
+    pub fn pairwise<A: Sync, B: Sync>(a: &[A], b: &[B], f: impl Fn(&A, &B) -> f64 + Sync) -> Self {
         let cols = b.len();
         let mut data = vec![0.0; a.len() * cols];
         if cols > 0 {
@@ -77,9 +107,18 @@ impl IouMatrix {
 }
 
 pub fn bev_iou_matrix(a: &[Box3d], b: &[Box3d]) -> IouMatrix {
-    IouMatrix::pairwise(a, b, bev_iou)
+    let (fa, fb) = (footprints(a), footprints(b));
+    IouMatrix::pairwise(&fa, &fb, BevFootprint::iou)
 }
 
 pub fn iou_3d_matrix(a: &[Box3d], b: &[Box3d]) -> IouMatrix {
-    IouMatrix::pairwise(a, b, iou_3d)
+    let with =
+        |boxes: &[Box3d]| -> Vec<(Box3d, BevFootprint)> { boxes.iter().map(|b| (*b, BevFootprint::new(b))).collect() };
+    let (fa, fb) = (with(a), with(b));
+    IouMatrix::pairwise(&fa, &fb, |(a, fa), (b, fb)| iou_3d_with(a, fa, b, fb))
+}
+
+/// Each box's [`BevFootprint`].
+pub fn footprints(boxes: &[Box3d]) -> Vec<BevFootprint> {
+    boxes.iter().map(BevFootprint::new).collect()
 }

@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::boxes::Box3d;
-use crate::iou::bev_iou;
+use crate::iou::BevFootprint;
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -29,19 +29,20 @@ pub fn nms(boxes: &[Box3d], scores: &[f64], cfg: &NmsConfig) -> Vec<usize> {
     let mut order: Vec<usize> = (0..boxes.len()).filter(|&i| scores[i] >= cfg.score_threshold).collect();
     order.sort_by(|&i, &j| scores[j].total_cmp(&scores[i]));
     order.truncate(cfg.pre_max_size);
+    let prints: Vec<BevFootprint> = order.iter().map(|&i| BevFootprint::new(&boxes[i])).collect();
     let mut keep: Vec<usize> = Vec::new();
     let mut suppressed = vec![false; order.len()];
     for k in 0..order.len() {
         if suppressed[k] {
             continue;
         }
-        let bk = &boxes[order[k]];
+        let bk = &prints[k];
         keep.push(order[k]);
         if keep.len() == cfg.post_max_size {
             break;
         }
         for (m, s) in suppressed.iter_mut().enumerate().skip(k + 1) {
-            if !*s && bev_iou(bk, &boxes[order[m]]) > cfg.iou_threshold {
+            if !*s && bk.iou(&prints[m]) > cfg.iou_threshold {
                 *s = true;
             }
         }
@@ -52,6 +53,7 @@ pub fn nms(boxes: &[Box3d], scores: &[f64], cfg: &NmsConfig) -> Vec<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::iou::bev_iou;
 
     fn b(x: f64, y: f64) -> Box3d {
         Box3d::new(x, y, 0.0, 4.0, 2.0, 1.5, 0.0)
