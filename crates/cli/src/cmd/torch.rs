@@ -25,9 +25,9 @@ pub struct Forwarded {
     pub args: Vec<OsString>,
 }
 
-/// Whether `args` (without the program name) ask for `help` of a detector command, e.g.
-/// `pi3det help train` or `pi3det --threads 2 help bench nn`: that help lives in pi3det-torch.
-pub fn is_help_for_forwarded(args: &[OsString]) -> bool {
+/// The first `n` words of `args` (without the program name) that are neither flags nor the
+/// value of the global `--threads`: the command and its subcommands.
+fn command_words(args: &[OsString], n: usize) -> Vec<&str> {
     let mut words = Vec::new();
     let mut it = args.iter().map(|a| a.to_str().unwrap_or(""));
     while let Some(a) = it.next() {
@@ -36,15 +36,32 @@ pub fn is_help_for_forwarded(args: &[OsString]) -> bool {
         } else if !a.starts_with('-') {
             words.push(a);
         }
-        if words.len() == 3 {
+        if words.len() == n {
             break;
         }
     }
+    words
+}
+
+/// Whether `args` (without the program name) ask for `help` of a detector command, e.g.
+/// `pi3det help train` or `pi3det --threads 2 help bench nn`: that help lives in pi3det-torch.
+pub fn is_help_for_forwarded(args: &[OsString]) -> bool {
     matches!(
-        words.as_slice(),
+        command_words(args, 3).as_slice(),
         ["help", "train" | "detect" | "adapt" | "autolabel" | "demo" | "benchmark" | "run" | "export", ..]
             | ["help", "bench", "nn" | "live" | "sparse"]
     )
+}
+
+/// Whether `args` run a command that trains a network (`train`, `adapt`, `demo`, `benchmark`,
+/// `bench nn`). For these `pi3det` sets `OMP_WAIT_POLICY=ACTIVE` unless the user set it: a
+/// backward pass is many short OpenMP regions, and workers that spin between them instead of
+/// sleeping made a training step 14 % faster on two cores (Pi3DET-Net preset, 120 steps: 25 s
+/// against 29 s, three runs each); inference did not change (1–2 %), and a live `run` would
+/// burn a core while it waits for frames, so the others keep libgomp's default. It has to be
+/// set before libtorch loads, hence here and not in `pi3det-torch`.
+pub fn trains(args: &[OsString]) -> bool {
+    matches!(command_words(args, 2).as_slice(), ["train" | "adapt" | "demo" | "benchmark", ..] | ["bench", "nn"])
 }
 
 fn is_file(p: &Path) -> bool {
@@ -84,6 +101,9 @@ pub fn run(args: &[OsString]) -> anyhow::Result<std::process::ExitCode> {
     let exe = locate()?;
     let mut cmd = std::process::Command::new(&exe);
     cmd.args(args);
+    if trains(args) && std::env::var_os("OMP_WAIT_POLICY").is_none() {
+        cmd.env("OMP_WAIT_POLICY", "ACTIVE");
+    }
     #[cfg(unix)]
     {
         use std::os::unix::process::CommandExt;
@@ -114,5 +134,16 @@ mod tests {
         assert!(!is_help_for_forwarded(&v(&["help", "eval"])));
         assert!(!is_help_for_forwarded(&v(&["help"])));
         assert!(!is_help_for_forwarded(&v(&["train", "--help"])), "not `help`: clap dispatches that");
+    }
+
+    #[test]
+    fn training_commands() {
+        assert!(trains(&v(&["train", "--config", "c.toml"])));
+        assert!(trains(&v(&["--threads", "2", "demo"])));
+        assert!(trains(&v(&["bench", "nn", "--no-torch"])));
+        assert!(!trains(&v(&["bench", "live"])));
+        assert!(!trains(&v(&["run", "--ckpt", "m.safetensors"])));
+        assert!(!trains(&v(&["detect"])));
+        assert!(!trains(&v(&["help", "train"])));
     }
 }
