@@ -1,7 +1,7 @@
 //! Per-frame overlaps for the three metrics, kept sparse (only pairs that overlap at all), in
 //! f64. Never across frames: the reference's 95% of wasted pairs come from concatenating frames.
 
-use pi3det_geometry::iou::{bev_intersection, height_overlap};
+use pi3det_geometry::iou::{height_overlap, BevFootprint};
 use pi3det_geometry::Box3d;
 
 /// A camera-frame box as the reference's rotated IoU sees it: the BEV rectangle in the camera
@@ -11,8 +11,8 @@ pub(crate) struct EvalBox {
     /// x = camera x, y = camera z, dx = l, dy = w, heading = −rotation_y (the reference's
     /// corners put the length axis along (cos ry, −sin ry)); z/dz carry the height as "up".
     pub bev: Box3d,
-    /// BEV circumradius, for a cheap rejection of far pairs.
-    radius: f64,
+    /// Corners, circumradius and area of `bev`, computed once: a box meets every box of its frame.
+    footprint: BevFootprint,
 }
 
 impl EvalBox {
@@ -20,11 +20,7 @@ impl EvalBox {
         let [l, h, w] = lhw;
         // Up = −camera y: the box spans camera y ∈ [y − h, y], i.e. up ∈ [−y, −y + h].
         let bev = Box3d::new(location[0], location[2], -location[1] + 0.5 * h, l, w, h, -rotation_y);
-        Self { bev, radius: 0.5 * (l * l + w * w).sqrt() }
-    }
-
-    fn area(&self) -> f64 {
-        self.bev.dx * self.bev.dy
+        Self { bev, footprint: BevFootprint::new(&bev) }
     }
 
     fn volume(&self) -> f64 {
@@ -51,15 +47,11 @@ pub(crate) fn image_overlap(b: &[f64; 4], q: &[f64; 4], over_first: bool) -> f64
 /// BEV and 3D IoU from one polygon intersection (the reference's `bev_box_overlap` and
 /// `d3_box_overlap`: intersection × height overlap over the union of volumes).
 pub(crate) fn bev_and_3d(a: &EvalBox, b: &EvalBox) -> (f64, f64) {
-    let (dx, dy, r) = (a.bev.x - b.bev.x, a.bev.y - b.bev.y, a.radius + b.radius);
-    if dx * dx + dy * dy >= r * r {
-        return (0.0, 0.0);
-    }
-    let inter = bev_intersection(&a.bev, &b.bev);
+    let inter = a.footprint.intersection(&b.footprint);
     if inter <= 0.0 {
         return (0.0, 0.0);
     }
-    let bev = inter / (a.area() + b.area() - inter);
+    let bev = inter / (a.footprint.area + b.footprint.area - inter);
     let iw = height_overlap(&a.bev, &b.bev);
     let d3 = if iw > 0.0 {
         let inc = iw * inter;

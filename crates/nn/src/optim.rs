@@ -99,6 +99,10 @@ impl Optimizer {
     pub fn update(&mut self, lr: f64, beta1: f64) {
         self.step += 1;
         let grads: Vec<Tensor> = self.params.iter().map(|p| p.grad()).collect();
+        if grads.is_empty() {
+            // Nothing to train (`cat` of no tensors would fail).
+            return;
+        }
         tch::no_grad(|| {
             if grads.iter().all(Tensor::defined) {
                 self.update_flat(&grads, lr, beta1);
@@ -299,6 +303,16 @@ mod tests {
         opt2.load_state(&state, opt.step).unwrap();
         assert_eq!(opt2.step, 300);
         assert!(opt2.load_state(&HashMap::new(), 0).is_err());
+    }
+
+    /// A model with nothing to train steps without failing.
+    #[test]
+    fn no_parameters_is_a_no_op() {
+        let mut opt = Optimizer::new(Vec::new(), &TrainConfig::default());
+        assert_eq!(opt.clip_grad_norm(1.0), 0.0);
+        opt.update(0.1, 0.9);
+        assert_eq!(opt.step, 1);
+        assert!(opt.state().is_empty());
     }
 
     /// The textbook per-tensor Adam(W) with clipping, for comparison.
