@@ -76,6 +76,8 @@ pub struct PostConfig {
     /// Lower the scores of small-object detections that are not upright bodies, after the fits
     /// (absent: off).
     pub upright_check: Option<crate::upright_check::UprightCheckConfig>,
+    /// Test-time augmentation: views of each frame fused before the fits (absent: off).
+    pub tta: Option<crate::tta::TtaConfig>,
 }
 
 impl PostConfig {
@@ -96,6 +98,7 @@ impl Default for PostConfig {
             ground_fit: None,
             bev_fit: None,
             upright_check: None,
+            tta: None,
         }
     }
 }
@@ -347,6 +350,9 @@ impl DetectorConfig {
         if let Some(u) = &p.upright_check {
             u.validate(&self.classes)?;
         }
+        if let Some(t) = &p.tta {
+            t.validate(&self.classes)?;
+        }
         let total_stride: i64 = self.backbone.layer_strides.iter().product::<i64>()
             * self.backbone_3d.as_ref().map_or(1, |b| b.xy_stride());
         if grid.nx as i64 % total_stride != 0 || grid.ny as i64 % total_stride != 0 {
@@ -502,6 +508,10 @@ mod tests {
         assert!(err("[post.upright_check]\nscore_factor = -0.5").contains("score_factor"));
         let up = DetectorConfig::from_toml_str("[post.upright_check]").unwrap();
         assert_eq!(up.post.upright_check.map(|u| u.classes), Some(vec!["Pedestrian".to_string()]));
+        assert!(err("[post.tta]\nyaw_deg = [400.0]").contains("yaw_deg"));
+        assert!(err("[post.tta.class_fusion_iou]\nCyclist = 0.4").contains("Cyclist"));
+        let tta = DetectorConfig::from_toml_str("[post.tta]").unwrap();
+        assert_eq!(tta.post.tta.map(|t| t.views().len()), Some(6));
         let unknown = "[[train.augment]]\ntype = \"gt_sampling\"\nsample = [{ class = \"Cyclist\", count = 5 }]";
         assert!(err(unknown).contains("Cyclist"));
         assert!(err("[head]\ntype = \"anchor\"\nanchors = []").contains("head.anchors"));

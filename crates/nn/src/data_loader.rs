@@ -20,7 +20,7 @@ use crate::error::{NnError, Result};
 use crate::ground_fit::{PointIndex, INDEX_CELL_M};
 use crate::pillarize::{Grid, Pillarizer, Pillars};
 use crate::preprocess::{Inputs, Preprocessor};
-use pi3det_geometry::{Box3d, Pose};
+use pi3det_geometry::{Box3d, Pose, View};
 
 /// A dataset restricted to some of its frames.
 #[derive(Clone)]
@@ -108,6 +108,9 @@ pub struct Batch {
     pub prep_seconds: f64,
     pub num_pillars: usize,
     pub dropped_points: usize,
+    /// Network inputs per frame: 1, or with test-time views ([`LoaderOptions::views`]) 1 + their
+    /// number; a frame's inputs are neighbours in `inputs` (the frame as it is first).
+    pub views_per_frame: usize,
 }
 
 /// Ground-truth boxes of a frame and their class indices, and the ignored boxes (with theirs)
@@ -126,6 +129,8 @@ pub struct FrameGt {
 /// A frame prepared for the network.
 pub struct PreparedFrame {
     pub pillars: Pillars,
+    /// At inference: the frame seen through each of [`LoaderOptions::views`].
+    pub view_pillars: Vec<Pillars>,
     /// At inference: the frame's points (detector frame) indexed for the vertical box fit
     /// ([`crate::ground_fit`]).
     pub point_index: Option<PointIndex>,
@@ -144,6 +149,9 @@ pub struct LoaderOptions {
     pub epoch: u64,
     pub prefetch: usize,
     pub drop_last: bool,
+    /// At inference: test-time views (besides the frame as it is) each frame is also prepared
+    /// in ([`crate::tta`]); empty: none.
+    pub views: Vec<View>,
 }
 
 /// Prepares one frame. The augmentation list is empty at inference.
@@ -154,7 +162,19 @@ pub fn prepare_frame(
     train: bool,
     rng_seed: u64,
 ) -> Result<PreparedFrame> {
-    with_pillarizer(prep, |pillarizer| prepare_with(prep, pillarizer, augments, frame, train, rng_seed))?
+    prepare_frame_in_views(prep, augments, frame, train, rng_seed, &[])
+}
+
+/// [`prepare_frame`], at inference also through each of `views` (detector frame).
+pub fn prepare_frame_in_views(
+    prep: &Preprocessor,
+    augments: &[Box<dyn Augment>],
+    frame: &Frame,
+    train: bool,
+    rng_seed: u64,
+    views: &[View],
+) -> Result<PreparedFrame> {
+    with_pillarizer(prep, |pillarizer| prepare_with(prep, pillarizer, augments, frame, train, rng_seed, views))?
 }
 
 thread_local! {
@@ -182,6 +202,7 @@ fn prepare_with(
     frame: &Frame,
     train: bool,
     rng_seed: u64,
+    views: &[View],
 ) -> Result<PreparedFrame> {
     let cfg = &prep.cfg;
     let mut s = prep.sample(frame, if train { cfg.train.min_points_in_gt } else { 0 });
@@ -207,12 +228,32 @@ fn prepare_with(
             ignored: s.ignored,
             ignored_classes: s.ignored_classes,
         };
-        Ok(PreparedFrame { pillars, targets, point_index: None, detector_from_lidar: s.detector_from_lidar, gt })
+        Ok(PreparedFrame {
+            pillars,
+            view_pillars: Vec::new(),
+            targets,
+            point_index: None,
+            detector_from_lidar: s.detector_from_lidar,
+            gt,
+        })
     } else {
         let pillars = pillarizer.run(&s.points, cfg.pillars.max_pillars_test);
         let point_index = cfg.post.fits_to_points().then(|| PointIndex::new(&s.points, INDEX_CELL_M));
+        let mut moved = Vec::new();
+        let view_pillars = views
+            .iter()
+            .map(|v| {
+                moved.clear();
+                moved.extend(s.points.iter().map(|p| {
+                    let (x, y) = v.apply_xy(f64::from(p[0]), f64::from(p[1]));
+                    [x as f32, y as f32, p[2], p[3]]
+                }));
+                pillarizer.run(&moved, cfg.pillars.max_pillars_test)
+            })
+            .collect();
         Ok(PreparedFrame {
             pillars,
+            view_pillars,
             targets: None,
             point_index,
             detector_from_lidar: s.detector_from_lidar,
@@ -248,11 +289,13 @@ pub fn prepare_batch(
             let index = subset.indices[pos];
             let frame = subset.dataset.load(index)?;
             let seed = frame_seed(opts.seed, opts.epoch, index as u64);
-            let p = prepare_frame(prep, augments, &frame, opts.train, seed)?;
+            let views = if opts.train { &[][..] } else { &opts.views };
+            let p = prepare_frame_in_views(prep, augments, &frame, opts.train, seed, views)?;
             Ok((frame.info, p))
         })
         .collect::<Result<_>>()?;
-    let pillars: Vec<&Pillars> = items.iter().map(|x| &x.1.pillars).collect();
+    let pillars: Vec<&Pillars> =
+        items.iter().flat_map(|x| std::iter::once(&x.1.pillars).chain(&x.1.view_pillars)).collect();
     let inputs = prep.collate_inputs(&pillars);
     let targets = if opts.train {
         let t: Vec<&FrameTargets> = items.iter().filter_map(|x| x.1.targets.as_ref()).collect();
@@ -279,6 +322,7 @@ pub fn prepare_batch(
         prep_seconds: t.elapsed().as_secs_f64(),
         num_pillars,
         dropped_points,
+        views_per_frame: if opts.train { 1 } else { 1 + opts.views.len() },
     })
 }
 

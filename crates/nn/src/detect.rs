@@ -57,27 +57,39 @@ pub fn to_objects(det: &Detector, dets: &[Detection], detector_from_lidar: &pi3d
         .collect()
 }
 
-/// Runs the detector over a subset. `on_frame(done, total)` reports progress.
+/// Runs the detector over a subset, with the config's test-time augmentation when it has one.
+/// `on_frame(done, total)` reports progress.
 pub fn detect(
     det: &Detector,
     subset: &Subset,
     batch_size: usize,
     on_batch: &mut dyn FnMut(usize, usize),
 ) -> Result<(Vec<FrameDetections>, Latency)> {
-    detect_with(det, det.prep.clone(), subset, batch_size, on_batch)
+    detect_with(det, det.prep.clone(), subset, batch_size, true, on_batch)
 }
 
 /// [`detect`] with frames prepared by `prep` (e.g. one with Virtual Platform Pose) instead of
-/// the detector's own preprocessor; detections go back through each frame's transform.
+/// the detector's own preprocessor; detections go back through each frame's transform. `tta`:
+/// whether the config's test-time augmentation (`[post.tta]`, [`crate::tta`]) runs, when it has one.
 pub fn detect_with(
     det: &Detector,
     prep: Arc<Preprocessor>,
     subset: &Subset,
     batch_size: usize,
+    tta: bool,
     on_batch: &mut dyn FnMut(usize, usize),
 ) -> Result<(Vec<FrameDetections>, Latency)> {
-    let opts =
-        LoaderOptions { batch_size: batch_size.max(1), train: false, seed: 0, epoch: 0, prefetch: 2, drop_last: false };
+    let tta_cfg = det.cfg().post.tta.as_ref().filter(|_| tta);
+    let views = tta_cfg.map_or_else(|| vec![pi3det_geometry::View::IDENTITY], |t| t.views());
+    let opts = LoaderOptions {
+        batch_size: batch_size.max(1),
+        train: false,
+        seed: 0,
+        epoch: 0,
+        prefetch: 2,
+        drop_last: false,
+        views: views[1..].to_vec(),
+    };
     let loader = Loader::new(prep, Arc::new(Vec::<Box<dyn Augment>>::new()), subset.clone(), opts);
     let total = subset.len();
     let mut out = Vec::with_capacity(total);
@@ -94,13 +106,33 @@ pub fn detect_with(
         }
         let t1 = Instant::now();
         let mut dets = det.post_process(&y, x.batch_size)?;
-        crate::post_process::fit_to_points(
-            &det.cfg().post,
-            &det.cfg().classes,
-            &mut dets,
-            &batch.point_index,
-            &batch.detector_from_lidar,
-        );
+        let post = &det.cfg().post;
+        let classes = &det.cfg().classes;
+        if let Some(t) = tta_cfg {
+            // Each view's boxes back in the frame and fitted to its points there, then fused.
+            let v = batch.views_per_frame;
+            for (k, d) in dets.iter_mut().enumerate() {
+                crate::tta::out_of_view(d, views[k % v]);
+                let (index, pose) = (&batch.point_index[k / v], &batch.detector_from_lidar[k / v]);
+                let one = std::slice::from_mut(d);
+                crate::post_process::fit_to_points(
+                    post,
+                    classes,
+                    one,
+                    std::slice::from_ref(index),
+                    std::slice::from_ref(pose),
+                );
+            }
+            dets = dets.chunks(v).map(|views| t.merge(views, classes, post)).collect();
+        } else {
+            crate::post_process::fit_to_points(
+                post,
+                classes,
+                &mut dets,
+                &batch.point_index,
+                &batch.detector_from_lidar,
+            );
+        }
         let t2 = Instant::now();
         lat.frames += n;
         lat.prep_ms += batch.prep_seconds * 1e3;

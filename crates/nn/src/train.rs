@@ -216,6 +216,7 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
                 epoch: epoch as u64,
                 prefetch: cfg.train.prefetch,
                 drop_last: true,
+                views: Vec::new(),
             },
         );
         let batches = loader.num_batches;

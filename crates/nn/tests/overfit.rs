@@ -84,6 +84,7 @@ fn config(head: HeadConfig) -> DetectorConfig {
             ground_fit: None,
             bev_fit: None,
             upright_check: None,
+            tta: None,
         },
         train: TrainConfig { lr: 0.003, weight_decay: 0.0, augment: vec![], ..TrainConfig::default() },
         ..DetectorConfig::default()

@@ -14,7 +14,6 @@ use pi3det_autolabel::quality::{quality, quality_table, Quality};
 use pi3det_autolabel::tracking::{track_dataset, TrackingConfig};
 use pi3det_autolabel::LabelSet;
 use pi3det_data::{DataError, Dataset, FrameInfo, FrameMap, Mapped, PointCloud};
-use pi3det_geometry::Box3d;
 use pi3det_nn::cli::{DataArgs, DeviceArgs};
 use pi3det_nn::data_loader::Subset;
 use pi3det_nn::preprocess::Preprocessor;
@@ -71,58 +70,26 @@ pub enum TtaKind {
     Rot,
 }
 
-/// One test-time view of a frame: LiDAR points mirrored across the x axis and/or turned about z.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct View {
-    pub flip_y: bool,
-    pub yaw_rad: f64,
-}
+pub use pi3det_geometry::View;
 
-impl View {
-    pub fn name(&self) -> String {
-        match (self.flip_y, self.yaw_rad) {
-            (false, 0.0) => "none".into(),
-            (true, 0.0) => "flip".into(),
-            (f, y) => format!("{}rot{:+.0}", if f { "flip_" } else { "" }, y.to_degrees()),
-        }
-    }
+/// A dataset seen through a [`View`]: points and boxes moved.
+#[derive(Debug, Clone, Copy)]
+pub struct ViewMap(pub View);
 
-    pub fn apply_xy(self, x: f64, y: f64) -> (f64, f64) {
-        let y = if self.flip_y { -y } else { y };
-        let (s, c) = self.yaw_rad.sin_cos();
-        (c * x - s * y, s * x + c * y)
-    }
-
-    /// A box of the original frame in this view.
-    pub fn into_view(self, b: &Box3d) -> Box3d {
-        let (x, y) = self.apply_xy(b.x, b.y);
-        let h = if self.flip_y { -b.heading } else { b.heading };
-        Box3d { x, y, heading: h + self.yaw_rad, ..*b }.with_wrapped_heading()
-    }
-
-    /// A box detected in this view, back in the original frame.
-    pub fn out_of_view(self, b: &Box3d) -> Box3d {
-        let (s, c) = (-self.yaw_rad).sin_cos();
-        let (x, y) = (c * b.x - s * b.y, s * b.x + c * b.y);
-        let h = b.heading - self.yaw_rad;
-        let (y, h) = if self.flip_y { (-y, -h) } else { (y, h) };
-        Box3d { x, y, heading: h, ..*b }.with_wrapped_heading()
-    }
-}
-
-impl View {
+impl ViewMap {
     /// A frame's info seen in this view: boxes moved, and the pose — which Virtual Platform Pose
     /// levels by — turned with the points (`world_from_view = world_from_lidar · Rz(−yaw)`). A
     /// mirror is no rigid motion, so a flipped view drops the pose and VPP levels it from its own
     /// ground plane instead.
     fn info_in_view(self, mut info: FrameInfo) -> FrameInfo {
-        info.objects.iter_mut().for_each(|o| o.box3d = self.into_view(&o.box3d));
-        info.world_from_lidar = match (self.flip_y, info.world_from_lidar) {
+        let v = self.0;
+        info.objects.iter_mut().for_each(|o| o.box3d = v.into_view(&o.box3d));
+        info.world_from_lidar = match (v.flip_y, info.world_from_lidar) {
             (true, _) | (_, None) => None,
             (false, Some(pose)) => Some(
                 pose * pi3det_geometry::Pose::from_parts(
                     nalgebra::Translation3::identity(),
-                    nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, -self.yaw_rad),
+                    nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, -v.yaw_rad),
                 ),
             ),
         };
@@ -147,8 +114,7 @@ pub fn views(kinds: &[TtaKind], rot_deg: f64) -> Vec<View> {
     v
 }
 
-/// A dataset seen through a [`View`]: points and boxes moved.
-impl FrameMap for View {
+impl FrameMap for ViewMap {
     fn info(&self, _index: usize, info: FrameInfo) -> FrameInfo {
         self.info_in_view(info)
     }
@@ -157,7 +123,7 @@ impl FrameMap for View {
         let stride = points.stride();
         let mut data = points.into_vec();
         for p in data.chunks_exact_mut(stride) {
-            let (x, y) = self.apply_xy(f64::from(p[0]), f64::from(p[1]));
+            let (x, y) = self.0.apply_xy(f64::from(p[0]), f64::from(p[1]));
             p[0] = x as f32;
             p[1] = y as f32;
         }
@@ -211,6 +177,7 @@ pub struct Ensemble {
 }
 
 /// Detections of `det` on `subset` seen through `view`, mapped back to the frames' own LiDAR frame.
+/// The checkpoint's own test-time augmentation stays off: the ensemble chooses the views.
 pub fn detect_in_view(
     det: &Detector,
     prep: Preprocessor,
@@ -218,9 +185,9 @@ pub fn detect_in_view(
     view: View,
     batch_size: usize,
 ) -> Result<Vec<detect::FrameDetections>> {
-    let ds: Arc<dyn Dataset> = Arc::new(Mapped { inner: subset.dataset.clone(), map: view });
+    let ds: Arc<dyn Dataset> = Arc::new(Mapped { inner: subset.dataset.clone(), map: ViewMap(view) });
     let sub = Subset { dataset: ds, indices: subset.indices.clone() };
-    let (mut frames, _) = detect::detect_with(det, Arc::new(prep), &sub, batch_size, &mut |_, _| {})?;
+    let (mut frames, _) = detect::detect_with(det, Arc::new(prep), &sub, batch_size, false, &mut |_, _| {})?;
     for f in &mut frames {
         f.objects.iter_mut().for_each(|o| o.box3d = view.out_of_view(&o.box3d));
         f.info = view_back(f.info.clone(), view);
@@ -402,14 +369,10 @@ mod tests {
     use super::*;
 
     #[test]
-    fn views_map_boxes_there_and_back() {
-        let b = Box3d { x: 10.0, y: -3.0, z: -0.8, dx: 4.0, dy: 1.8, dz: 1.5, heading: 0.7 };
-        for v in views(&[TtaKind::None, TtaKind::Flip, TtaKind::Rot], 15.0) {
-            let back = v.out_of_view(&v.into_view(&b));
-            for (p, q) in back.to_array().iter().zip(b.to_array()) {
-                assert!((p - q).abs() < 1e-9, "{v:?}: {back:?}");
-            }
-        }
+    fn views_move_the_pose_with_the_points() {
+        let names: Vec<String> =
+            views(&[TtaKind::None, TtaKind::Flip, TtaKind::Rot], 15.0).iter().map(View::name).collect();
+        assert_eq!(names, ["none", "flip", "rot+15", "rot-15"]);
         // A turned view keeps every point where it is in the world.
         let mut info = FrameInfo::new("0", "x.bin".into());
         let world_from_lidar = pi3det_geometry::Pose::from_parts(
@@ -418,14 +381,12 @@ mod tests {
         );
         info.world_from_lidar = Some(world_from_lidar);
         let rot = View { flip_y: false, yaw_rad: 0.3 };
-        let world_from_view = rot.info_in_view(info.clone()).world_from_lidar.unwrap();
+        let world_from_view = ViewMap(rot).info_in_view(info.clone()).world_from_lidar.unwrap();
         let p = nalgebra::Point3::new(7.0, 3.0, -1.0);
         let (x, y) = rot.apply_xy(p.x, p.y);
         let moved = world_from_view * nalgebra::Point3::new(x, y, p.z);
         assert!((moved - world_from_lidar * p).norm() < 1e-9);
         let flip = View { flip_y: true, yaw_rad: 0.0 };
-        assert!(flip.info_in_view(info).world_from_lidar.is_none());
-        let f = flip.into_view(&b);
-        assert!((f.y - 3.0).abs() < 1e-12 && (f.heading + 0.7).abs() < 1e-12, "{f:?}");
+        assert!(ViewMap(flip).info_in_view(info).world_from_lidar.is_none());
     }
 }

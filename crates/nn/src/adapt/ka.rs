@@ -115,6 +115,7 @@ impl KnowledgeAdaptation {
                 epoch,
                 prefetch: self.train.prefetch,
                 drop_last: true,
+                views: Vec::new(),
             },
         )
     }

@@ -281,7 +281,7 @@ fn latest_checkpoint(dir: &Path) -> Option<PathBuf> {
 
 /// AP on `val`; the detections go to `out` (JSON lines, for `pi3det eval --breakdown`).
 pub fn evaluate(det: &Detector, prep: Arc<Preprocessor>, val: &Subset, out: &Path) -> Result<ApSummary> {
-    let (frames, _) = detect::detect_with(det, prep, val, 4, &mut |_, _| {})?;
+    let (frames, _) = detect::detect_with(det, prep, val, 4, true, &mut |_, _| {})?;
     detect::write_jsonl(out, &frames)?;
     let r = det.cfg().pillars.point_cloud_range;
     let opts = eval::options(&det.cfg().classes, Some([r[0], r[1], r[3], r[4]]), None);
@@ -461,7 +461,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         let name = if vpp.is_some() { "PA model, through VPP" } else { "PA model" };
         report.pseudo_label_quality.push(QualityRow { labels: name.into(), rows: q });
         if vpp.is_some() {
-            let (raw, _) = detect::detect_with(&det, plain_prep.clone(), &opts.target, 4, &mut |_, _| {})?;
+            let (raw, _) = detect::detect_with(&det, plain_prep.clone(), &opts.target, 4, true, &mut |_, _| {})?;
             let q = pseudo_labels::quality(&raw, gt, det_cfg, pos, &[0.5, 0.7], bev);
             report
                 .pseudo_label_quality

@@ -59,7 +59,7 @@ pub fn generate(
     cfg: &PseudoLabelConfig,
     on_batch: &mut dyn FnMut(usize, usize),
 ) -> Result<Vec<FrameDetections>> {
-    let (mut frames, _) = detect::detect_with(det, prep, subset, 4, on_batch)?;
+    let (mut frames, _) = detect::detect_with(det, prep, subset, 4, true, on_batch)?;
     for f in &mut frames {
         f.objects.retain(|o| o.score.is_some_and(|s| s >= cfg.ignore_score));
     }
