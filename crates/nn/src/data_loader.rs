@@ -162,19 +162,7 @@ pub fn prepare_frame(
     train: bool,
     rng_seed: u64,
 ) -> Result<PreparedFrame> {
-    prepare_frame_in_views(prep, augments, frame, train, rng_seed, &[])
-}
-
-/// [`prepare_frame`], at inference also through each of `views` (detector frame).
-pub fn prepare_frame_in_views(
-    prep: &Preprocessor,
-    augments: &[Box<dyn Augment>],
-    frame: &Frame,
-    train: bool,
-    rng_seed: u64,
-    views: &[View],
-) -> Result<PreparedFrame> {
-    with_pillarizer(prep, |pillarizer| prepare_with(prep, pillarizer, augments, frame, train, rng_seed, views))?
+    with_pillarizer(prep, |pillarizer| prepare_with(prep, pillarizer, augments, frame, train, rng_seed, &[]))?
 }
 
 thread_local! {
@@ -290,7 +278,7 @@ pub fn prepare_batch(
             let frame = subset.dataset.load(index)?;
             let seed = frame_seed(opts.seed, opts.epoch, index as u64);
             let views = if opts.train { &[][..] } else { &opts.views };
-            let p = prepare_frame_in_views(prep, augments, &frame, opts.train, seed, views)?;
+            let p = with_pillarizer(prep, |px| prepare_with(prep, px, augments, &frame, opts.train, seed, views))??;
             Ok((frame.info, p))
         })
         .collect::<Result<_>>()?;

@@ -8,7 +8,7 @@
 //! Car BEV@0.7 63.6 → 71.1 with the six views of the pillar presets.
 //!
 //! The views run as one batch (frame-major: a frame's views are neighbours), so the cost is
-//! the network's on `1 + flip + yaw_deg.len()` frames. `pi3det detect --no-tta` turns it off;
+//! the network's on `1 + flip + yaw_deg.len()` frames. `pi3det detect --tta false` turns it off;
 //! the live `pi3det run` never uses it.
 
 use std::collections::BTreeMap;

@@ -112,6 +112,7 @@ fn options(cfg: &AdaptConfig, d: &Data, out: &Path) -> AdaptOptions {
         resume: false,
         stop_after: Some(Stage::Ka),
         source_only: None,
+        vpp_diagnostics: true,
     }
 }
 

@@ -444,6 +444,8 @@ fn run_seed(
                         resume: false,
                         stop_after: None,
                         source_only,
+                        // The demo's table shows source-only and adapted rows only.
+                        vpp_diagnostics: false,
                     },
                     false,
                 )?;

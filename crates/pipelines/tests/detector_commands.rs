@@ -89,7 +89,10 @@ fn demo_then_detect_then_eval() {
         let row = json["seeds"][0]["rows"].as_array().unwrap().iter().find(|r| r["platform"] == platform).unwrap();
         assert_eq!(adapt["source_only"], row["summary"], "{platform}");
         assert!(!dir.join(format!("pi3det_net_{platform}/val_source_only.jsonl")).exists());
-        assert!(dir.join(format!("pi3det_net_{platform}/val_source_only_vpp.jsonl")).is_file());
+        // Nor the VPP diagnostics (PA through VPP, pseudo-labels without VPP).
+        assert!(!dir.join(format!("pi3det_net_{platform}/val_source_only_vpp.jsonl")).exists());
+        assert!(adapt["source_only_vpp"].is_null(), "{platform}");
+        assert!(adapt["pseudo_label_quality"].as_array().is_some_and(|q| q.len() <= 1), "{platform}");
     }
     assert_eq!(json["seeds"][0]["rows"][0]["frames"], 4, "one validation sequence of four frames");
     assert_eq!(reused(&json), (false, false));

@@ -184,6 +184,10 @@ pub struct AdaptOptions {
     /// The PA model's AP on `val`, when the caller has already measured it (the demo has): taken
     /// as the source-only row instead of evaluating the same model on the same frames again.
     pub source_only: Option<ApSummary>,
+    /// Also run the two passes that only explain VPP: the PA model through VPP on `val`
+    /// (`source_only_vpp`) and pseudo-labels without VPP (their quality row). Two inference passes
+    /// over the target; the demo skips them.
+    pub vpp_diagnostics: bool,
 }
 
 /// Progress events.
@@ -426,7 +430,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
             Some(s) => Some(s.clone()),
             None => Some(evaluate(&det, plain_prep.clone(), v, &out.join("val_source_only.jsonl"))?),
         };
-        if vpp.is_some() {
+        if vpp.is_some() && opts.vpp_diagnostics {
             let o = out.join("val_source_only_vpp.jsonl");
             report.source_only_vpp = Some(evaluate(&det, Arc::new(target_prep(false)?), v, &o)?);
         }
@@ -460,7 +464,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         let q = pseudo_labels::quality(&labels, gt, det_cfg, pos, &[0.5, 0.7], bev);
         let name = if vpp.is_some() { "PA model, through VPP" } else { "PA model" };
         report.pseudo_label_quality.push(QualityRow { labels: name.into(), rows: q });
-        if vpp.is_some() {
+        if vpp.is_some() && opts.vpp_diagnostics {
             let (raw, _) = detect::detect_with(&det, plain_prep.clone(), &opts.target, 4, true, &mut |_, _| {})?;
             let q = pseudo_labels::quality(&raw, gt, det_cfg, pos, &[0.5, 0.7], bev);
             report

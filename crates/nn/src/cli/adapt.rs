@@ -50,6 +50,10 @@ pub struct AdaptArgs {
     pub pa_epochs: Option<usize>,
     #[arg(long)]
     pub ka_epochs: Option<usize>,
+    /// Also evaluate the PA model through VPP and score pseudo-labels made without VPP (two
+    /// extra inference passes that show what VPP does).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set, value_name = "BOOL")]
+    pub vpp_diagnostics: bool,
     /// Override the seed of both stages.
     #[arg(long)]
     pub seed: Option<u64>,
@@ -164,6 +168,7 @@ pub fn run_adapt(args: &AdaptArgs) -> Result<AdaptReport> {
         resume: args.resume,
         stop_after: args.stop_after,
         source_only: None,
+        vpp_diagnostics: args.vpp_diagnostics,
     };
     let report = adapt_with_progress(opts, false)?;
     println!("{}", pipeline::markdown(&report, &det_cfg));

@@ -540,6 +540,7 @@ pub fn run_cell(ctx: &Ctx<'_>, cell: &Cell, dir: &Path, log: &mut Log) -> Result
                     resume: false,
                     stop_after: None,
                     source_only: None,
+                    vpp_diagnostics: true,
                 },
                 &mut |e| match e {
                     adapt::AdaptEvent::Message(m) => msgs.push(m),
