@@ -53,8 +53,9 @@ pub struct DetectArgs {
     /// time per frame.
     #[arg(long, value_name = "BOOL")]
     pub tta: Option<bool>,
-    /// A TOML file whose `[post]` table replaces the checkpoint's post-processing (thresholds,
-    /// NMS, fits); the flags above apply on top of it.
+    /// A TOML file whose `[post]` table (a detector config's, or a Pi3DET-Net preset's
+    /// `[detector.post]`) replaces the checkpoint's post-processing (thresholds, NMS, fits, TTA);
+    /// the flags above apply on top of it.
     #[arg(long, value_name = "TOML")]
     pub post: Option<PathBuf>,
     /// Override the z shift applied to the points (e.g. to move a drone's ground to z ≈ 0).
@@ -162,17 +163,21 @@ fn switch<T: Default>(fit: &mut Option<T>, on: Option<bool>) {
     }
 }
 
-/// The `[post]` table of a TOML file (`--post`).
+/// The post-processing of a TOML file (`--post`): its `[post]` table — a file holding just that
+/// table, or a detector config — or a Pi3DET-Net preset's `[detector.post]`, so a preset's box
+/// fits and test-time augmentation apply to any checkpoint.
 fn read_post(path: &std::path::Path) -> Result<crate::config::PostConfig> {
-    #[derive(serde::Deserialize)]
-    #[serde(deny_unknown_fields)]
-    struct PostOnly {
-        post: crate::config::PostConfig,
-    }
     let text = std::fs::read_to_string(path).map_err(|e| NnError::io(path, e))?;
-    let t: PostOnly = toml::from_str(&text)
-        .map_err(|e| NnError::Config(format!("{}: expected one [post] table: {e}", path.display())))?;
-    Ok(t.post)
+    parse_post(&text).map_err(|m| NnError::Config(format!("{}: {m}", path.display())))
+}
+
+fn parse_post(text: &str) -> std::result::Result<crate::config::PostConfig, String> {
+    let table: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
+    let post = match (table.get("post"), table.get("detector").and_then(|d| d.get("post"))) {
+        (Some(p), _) | (None, Some(p)) => p.clone(),
+        (None, None) => return Err("no [post] or [detector.post] table".into()),
+    };
+    post.try_into().map_err(|e: toml::de::Error| format!("[post]: {e}"))
 }
 
 pub fn format_latency(l: &Latency) -> String {
@@ -183,4 +188,26 @@ pub fn format_latency(l: &Latency) -> String {
         l.network_ms,
         l.post_ms
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_post;
+
+    #[test]
+    fn post_comes_from_a_post_table_a_detector_config_or_a_preset() {
+        let plain = parse_post("[post]\nscore_threshold = 0.2\n[post.bev_fit]\n").unwrap();
+        assert_eq!(plain.score_threshold, 0.2);
+        assert!(plain.bev_fit.is_some());
+        let detector = parse_post("name = \"d\"\n[post]\nnms_iou = 0.3\n").unwrap();
+        assert_eq!(detector.nms_iou, 0.3);
+        let preset = parse_post(include_str!("../../../../configs/pi3det_net_cpu.toml")).unwrap();
+        let tta = preset.tta.expect("the Pi3DET-Net preset has test-time augmentation");
+        assert_eq!(tta.class_fusion_iou.get("Pedestrian"), Some(&0.4));
+        assert!(preset.ground_fit.is_some() && preset.upright_check.is_some());
+        let e = parse_post("[post]\nscore_treshold = 0.2\n").unwrap_err();
+        assert!(e.contains("score_treshold"), "{e}");
+        let e = parse_post("[train]\nepochs = 1\n").unwrap_err();
+        assert!(e.contains("[post]"), "{e}");
+    }
 }
