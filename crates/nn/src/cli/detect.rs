@@ -172,9 +172,11 @@ fn read_post(path: &std::path::Path) -> Result<crate::config::PostConfig> {
 }
 
 fn parse_post(text: &str) -> std::result::Result<crate::config::PostConfig, String> {
-    let table: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
-    let post = match (table.get("post"), table.get("detector").and_then(|d| d.get("post"))) {
-        (Some(p), _) | (None, Some(p)) => p.clone(),
+    let mut table: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
+    let nested = table.get_mut("detector").and_then(|d| d.as_table_mut()).and_then(|d| d.remove("post"));
+    let post = match (table.remove("post"), nested) {
+        (Some(p), None) | (None, Some(p)) => p,
+        (Some(_), Some(_)) => return Err("both [post] and [detector.post]: which one is meant?".into()),
         (None, None) => return Err("no [post] or [detector.post] table".into()),
     };
     post.try_into().map_err(|e: toml::de::Error| format!("[post]: {e}"))
@@ -207,6 +209,8 @@ mod tests {
         assert!(preset.ground_fit.is_some() && preset.upright_check.is_some());
         let e = parse_post("[post]\nscore_treshold = 0.2\n").unwrap_err();
         assert!(e.contains("score_treshold"), "{e}");
+        let e = parse_post("[post]\n[detector.post]\n").unwrap_err();
+        assert!(e.contains("both"), "{e}");
         let e = parse_post("[train]\nepochs = 1\n").unwrap_err();
         assert!(e.contains("[post]"), "{e}");
     }
