@@ -83,6 +83,9 @@ class PointPillars(nn.Module):
         # Like pi3det-nn: the BEV canvas is [B, ny, nx, C] seen as NCHW (channels-last layout)
         # unless the config turns that off.
         self.channels_last = m.get("channels_last", False)
+        # Like pi3det-nn's `precision` / `train.precision`: the backbone in bfloat16, the heads
+        # in f32 (main() sets it for the training step and for inference).
+        self.bf16 = False
 
     def forward(self, features, cells, batch_size):
         x = features
@@ -93,7 +96,9 @@ class PointPillars(nn.Module):
         bev = canvas.index_copy(0, cells, x).view(batch_size, self.ny, self.nx, c).permute(0, 3, 1, 2)
         if not self.channels_last:
             bev = bev.contiguous()
-        f = self.backbone(bev)
+        with torch.autocast(device_type=bev.device.type, dtype=torch.bfloat16, enabled=self.bf16):
+            f = self.backbone(bev)
+        f = f.float()
         flat = lambda t, n: t.permute(0, 2, 3, 1).contiguous().view(batch_size, -1, n)
         return flat(self.conv_cls(f), self.k), flat(self.conv_box(f), 7), flat(self.conv_dir(f), 2)
 
@@ -157,7 +162,7 @@ def main():
     if args.layout != "same":
         m["channels_last"] = args.layout == "channels_last"
     net = PointPillars(m).to(dev)
-    res = {"torch": torch.__version__, "threads": torch.get_num_threads(), "channels_last": net.channels_last, "parameters": sum(p.numel() for p in net.parameters())}
+    res = {"torch": torch.__version__, "threads": torch.get_num_threads(), "channels_last": net.channels_last, "bf16_train": m.get("bf16_train", False), "bf16_infer": m.get("bf16_infer", False), "parameters": sum(p.numel() for p in net.parameters())}
 
     tr = m["train"]
     b = tr["batch_size"]
@@ -183,6 +188,7 @@ def main():
         return loss
 
     net.train()
+    net.bf16 = m.get("bf16_train", False)
     res["train_step"] = timed(step, args.iters, args.warmup, dev)
     res["train_loss"] = float(step())
 
@@ -190,6 +196,7 @@ def main():
     xi = load(args.dir, "infer_features", np.float32, (inf["pillars"], m["max_points"], 10)).to(dev)
     ci = load(args.dir, "infer_cells", np.int64, (inf["pillars"],)).to(dev)
     net.eval()
+    net.bf16 = m.get("bf16_infer", False)
 
     def fwd():
         with torch.inference_mode():

@@ -7,6 +7,7 @@ use tch::nn::{self, ModuleT};
 use tch::Tensor;
 
 use crate::error::{NnError, Result};
+use crate::precision::{conv2d, conv_transpose2d};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -78,7 +79,7 @@ impl Backbone2dConfig {
 
     pub fn init(&self, vs: nn::Path, in_channels: i64, bn: &crate::BatchNorm) -> Backbone2d {
         let conv = |p: nn::Path, i: i64, o: i64, stride: i64| {
-            nn::conv2d(p, i, o, 3, nn::ConvConfig { stride, padding: 1, bias: false, ..Default::default() })
+            conv2d(p, i, o, 3, nn::ConvConfig { stride, padding: 1, bias: false, ..Default::default() })
         };
         let mut blocks = Vec::new();
         let mut deblocks = Vec::new();
@@ -101,7 +102,7 @@ impl Backbone2dConfig {
             let uc = self.num_upsample_filters[b];
             let p = &vs / format!("deblock{b}");
             let up = nn::seq_t()
-                .add(nn::conv_transpose2d(
+                .add(conv_transpose2d(
                     &p / "deconv",
                     c,
                     uc,
@@ -125,7 +126,7 @@ pub struct Backbone2d {
 
 impl Backbone2d {
     /// `[B, C_in, ny, nx]` → `[B, Σ upsample filters, ny / s, nx / s]` with `s` the output stride
-    /// (input sides must be divisible by the product of the layer strides).
+    /// (input sides must be divisible by the product of the layer strides), in `x`'s kind.
     pub fn forward_t(&self, x: &Tensor, train: bool) -> Tensor {
         let mut x = x.shallow_clone();
         let mut ups = Vec::with_capacity(self.blocks.len());

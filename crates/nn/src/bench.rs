@@ -47,6 +47,9 @@ pub struct BenchReport {
     pub config: String,
     pub device: String,
     pub torch_threads: usize,
+    /// The BEV network's compute kinds in training and at inference (`train.precision`,
+    /// `precision`).
+    pub compute_kind: String,
     pub batch_size: usize,
     pub train_pillars: usize,
     pub infer_pillars: usize,
@@ -187,6 +190,11 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
         config: cfg.name.clone(),
         device: format!("{:?}", opts.device),
         torch_threads: opts.threads,
+        compute_kind: format!(
+            "{:?} (training) / {:?} (inference)",
+            cfg.train.precision.compute_kind(opts.device),
+            cfg.precision.compute_kind(opts.device)
+        ),
         batch_size: bs,
         train_pillars: pillars.iter().map(|p| p.len()).sum(),
         infer_pillars,
@@ -234,6 +242,8 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
         "nx": prep.grid.nx, "ny": prep.grid.ny,
         "max_points": cfg.pillars.max_points_per_pillar,
         "channels_last": cfg.channels_last && opts.device == Device::Cpu,
+        "bf16_train": cfg.train.precision.compute_kind(opts.device) == tch::Kind::BFloat16,
+        "bf16_infer": cfg.precision.compute_kind(opts.device) == tch::Kind::BFloat16,
         "loss_weights": {"cls": anchor_cfg.cls_weight, "loc": anchor_cfg.loc_weight, "dir": anchor_cfg.dir_weight},
         "train": {"batch_size": bs, "pillars": x.features.size()[0], "positives": at.pos_index.size()[0]},
         "infer": {"pillars": p.len()},

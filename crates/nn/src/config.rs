@@ -133,6 +133,10 @@ pub struct TrainConfig {
     pub seed: u64,
     /// libtorch intra-op threads (0: let the runner decide, see `device::default_threads`).
     pub threads: usize,
+    /// Compute precision of the 2-D backbone and the neck in training steps (the top-level
+    /// `precision` is inference's). f32 by default: bf16 training cost the Pi3DET-Net preset
+    /// about 2 Car BEV points (README, "Mixed precision").
+    pub precision: crate::precision::Precision,
     /// Batches prepared ahead on the loader thread.
     pub prefetch: usize,
     /// Evaluate every this many epochs (0: only at the end); checkpoint every this many epochs.
@@ -166,6 +170,7 @@ impl Default for TrainConfig {
             grad_clip: 10.0,
             seed: 0,
             threads: 0,
+            precision: Default::default(),
             prefetch: 2,
             eval_every: 0,
             ckpt_every: 1,
@@ -193,6 +198,9 @@ pub struct DetectorConfig {
     pub pillars: PillarizeConfig,
     /// Run the BEV network in channels-last memory layout on the CPU (faster with oneDNN).
     pub channels_last: bool,
+    /// Compute precision of the 2-D backbone and the neck at inference (`f32`, `bf16`, `auto`;
+    /// weights and heads stay f32, [`crate::precision`]); training's is `train.precision`.
+    pub precision: crate::precision::Precision,
     pub batch_norm: crate::BatchNorm,
     /// The pillar feature net (pillar grids; voxel grids average each voxel's points instead).
     pub vfe: PillarVfeConfig,
@@ -221,6 +229,7 @@ impl Default for DetectorConfig {
             shift_z: 0.0,
             pillars: PillarizeConfig::default(),
             channels_last: true,
+            precision: Default::default(),
             batch_norm: crate::BatchNorm::default(),
             vfe: PillarVfeConfig::default(),
             backbone_3d: None,

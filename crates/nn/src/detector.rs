@@ -17,7 +17,7 @@ use std::sync::Arc;
 
 use rand_chacha::ChaCha8Rng;
 use tch::nn::VarStore;
-use tch::{Device, Tensor};
+use tch::{Device, Kind, Tensor};
 
 use crate::adapt::pfa::{Latent, Pfa};
 use crate::backbone_2d::Backbone2d;
@@ -179,11 +179,15 @@ impl Detector {
             }
             None => scatter(&cell_features, &x.cells, x.batch_size, g.ny as i64, g.nx as i64, channels_last),
         };
-        let bev = self.backbone_2d.forward_t(&bev, train);
-        let neck = match &self.neck {
+        // Mixed precision: the backbone and the neck in the compute kind, the heads in f32.
+        let precision = if train { self.cfg().train.precision } else { self.cfg().precision };
+        let kind = precision.compute_kind(self.device());
+        let bev = self.backbone_2d.forward_t(&bev.to_kind(kind), train);
+        let mut neck = match &self.neck {
             Some(n) => n.forward_t(&bev, train),
             None => NeckOutput { bev, rotation_deg: None },
         };
+        neck.bev = neck.bev.to_kind(Kind::Float);
         Ok((neck, stages))
     }
 

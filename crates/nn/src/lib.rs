@@ -54,6 +54,7 @@ pub mod necks;
 pub mod optim;
 pub mod pillarize;
 pub mod post_process;
+pub mod precision;
 pub mod preprocess;
 pub mod roi_heads;
 pub mod scatter;

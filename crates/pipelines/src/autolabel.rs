@@ -161,6 +161,8 @@ pub struct EnsembleOptions<'a> {
     pub min_score: f64,
     pub batch_size: usize,
     pub device: tch::Device,
+    /// Overrides the checkpoints' `precision` (`--precision`).
+    pub precision: Option<pi3det_nn::precision::Precision>,
 }
 
 /// MS3D++'s labels: every checkpoint × view → kernel-density box fusion → tracking → score filter.
@@ -206,7 +208,11 @@ pub fn ensemble(o: &EnsembleOptions<'_>, on_input: &mut dyn FnMut(&str, &LabelSe
     let mut inputs = Vec::new();
     let mut names = Vec::new();
     for (k, ckpt) in o.checkpoints.iter().enumerate() {
-        let ck = checkpoint::load(ckpt)?;
+        let mut ck = checkpoint::load(ckpt)?;
+        if let Some(p) = o.precision {
+            ck.config.precision = p;
+            ck.config.train.precision = p;
+        }
         let mut det = Detector::new(&ck.config, o.device)?;
         ck.load_into(&mut det, ckpt)?;
         for view in o.views {
@@ -289,6 +295,7 @@ pub fn run_autolabel(args: &AutolabelArgs) -> Result<()> {
             min_score: args.min_score,
             batch_size: args.batch_size,
             device,
+            precision: args.device.precision,
         },
         &mut |name, labels| {
             let path = args.out.join("detections").join(format!("{name}.jsonl"));

@@ -263,6 +263,8 @@ pub fn run_demo(args: &DemoArgs) -> Result<DemoReport> {
     if args.epochs > 0 {
         cfg.train.epochs = args.epochs;
     }
+    args.device.apply_precision(&mut cfg);
+    args.device.apply_precision(&mut adapt.detector);
     cfg.validate()?;
     let max_val = args.max_val_frames.unwrap_or(cfg.train.max_eval_frames);
     let device = args.device.setup(cfg.train.threads)?;

@@ -247,10 +247,11 @@ fn check_class_names(infos: &[pi3det_data::FrameInfo], cfg: &DetectorConfig, wha
     )))
 }
 
-/// The parts of a config that shape the network (everything but training and post-processing).
+/// The parts of a config that shape the network (everything but training, post-processing and
+/// how the network computes: memory layout, precision).
 fn architecture(cfg: &DetectorConfig) -> toml::Table {
     let mut t: toml::Table = toml::from_str(&cfg.to_toml()).unwrap_or_default();
-    for k in ["name", "train", "post", "loss_weights"] {
+    for k in ["name", "train", "post", "loss_weights", "channels_last", "precision"] {
         t.remove(k);
     }
     t

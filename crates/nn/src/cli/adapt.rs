@@ -82,6 +82,7 @@ impl AdaptArgs {
         if let Some(s) = self.seed {
             cfg.detector.train.seed = s;
         }
+        self.device.apply_precision(&mut cfg.detector);
         cfg.validate()?;
         Ok(cfg)
     }

@@ -8,6 +8,8 @@ use pi3det_data::Platform;
 use crate::data_loader::{open_split, Subset};
 use crate::device::{self, DeviceChoice};
 use crate::error::Result;
+use crate::precision::Precision;
+use crate::DetectorConfig;
 
 /// Device and libtorch threads.
 #[derive(clap::Args, Debug, Clone)]
@@ -19,6 +21,11 @@ pub struct DeviceArgs {
     /// $PI3DET_TORCH_THREADS, else every core; on a machine busy with other work 1 can be faster].
     #[arg(long, value_name = "N")]
     pub torch_threads: Option<usize>,
+    /// Compute precision of the 2-D backbone and the neck, in training and at inference: f32,
+    /// bf16, or auto (bf16 on CPUs with native bfloat16, e.g. AVX512-BF16; weights and heads stay
+    /// f32) [default: the config's `train.precision` and `precision`].
+    #[arg(long, value_name = "P")]
+    pub precision: Option<Precision>,
 }
 
 impl DeviceArgs {
@@ -30,6 +37,15 @@ impl DeviceArgs {
         let d = device::resolve(self.device)?;
         tracing::info!("device {d:?}, {n} libtorch thread(s)");
         Ok(d)
+    }
+
+    /// Writes `--precision` into a config, for training and inference (the checkpoint then
+    /// records what ran).
+    pub fn apply_precision(&self, cfg: &mut DetectorConfig) {
+        if let Some(p) = self.precision {
+            cfg.precision = p;
+            cfg.train.precision = p;
+        }
     }
 
     /// The libtorch threads `setup` uses.

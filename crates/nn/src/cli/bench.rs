@@ -49,10 +49,11 @@ fn repo_path(rel: &str) -> PathBuf {
 /// Runs the benchmark and prints its table (or JSON). Without `--data`, `default_frames(n)`
 /// supplies the `n` frames (n = the config's batch size).
 pub fn run_bench_nn(args: &BenchNnArgs, default_frames: &mut dyn FnMut(usize) -> Result<Vec<Frame>>) -> Result<()> {
-    let cfg = match &args.config {
+    let mut cfg = match &args.config {
         Some(p) => DetectorConfig::from_file(p)?,
         None => DetectorConfig::from_toml_str(CPU_PRESET)?,
     };
+    args.device.apply_precision(&mut cfg);
     let threads = args.device.threads(cfg.train.threads);
     let device = args.device.setup(cfg.train.threads)?;
     let n = cfg.train.batch_size.max(1);
@@ -101,8 +102,8 @@ pub fn run_bench_nn(args: &BenchNnArgs, default_frames: &mut dyn FnMut(usize) ->
         return Ok(());
     }
     println!(
-        "{} on {} ({} libtorch thread(s)); {} points/frame, {} pillars (inference), batch {} ({} pillars) for training",
-        r.config, r.device, r.torch_threads, r.points_per_frame, r.infer_pillars, r.batch_size, r.train_pillars
+        "{} on {} ({} libtorch thread(s), backbone in {}); {} points/frame, {} pillars (inference), batch {} ({} pillars) for training",
+        r.config, r.device, r.torch_threads, r.compute_kind, r.points_per_frame, r.infer_pillars, r.batch_size, r.train_pillars
     );
     println!("| | ours (median ms) | PyTorch (median ms) | ours / PyTorch |");
     println!("|---|---:|---:|---:|");

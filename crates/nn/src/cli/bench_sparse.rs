@@ -202,10 +202,11 @@ pub fn run_bench_sparse(
     args: &BenchSparseArgs,
     default_frames: &mut dyn FnMut(usize) -> Result<Vec<Frame>>,
 ) -> Result<()> {
-    let cfg = match &args.config {
+    let mut cfg = match &args.config {
         Some(p) => DetectorConfig::from_file(p)?,
         None => DetectorConfig::from_toml_str(SECOND_CPU_PRESET)?,
     };
+    args.device.apply_precision(&mut cfg);
     let threads = args.device.threads(cfg.train.threads);
     let device = args.device.setup(cfg.train.threads)?;
     let n = args.frames.max(1);

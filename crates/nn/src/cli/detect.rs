@@ -111,6 +111,7 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     switch(&mut ck.config.post.bev_fit, args.bev_fit);
     switch(&mut ck.config.post.upright_check, args.upright_check);
     switch(&mut ck.config.post.tta, args.tta);
+    args.device.apply_precision(&mut ck.config);
     ck.config.validate()?;
     let mut det = crate::Detector::new(&ck.config, device)?;
     ck.load_into(&mut det, &args.ckpt)?;

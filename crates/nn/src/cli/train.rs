@@ -75,6 +75,7 @@ impl TrainArgs {
         if let Some(n) = self.max_val_frames {
             cfg.train.max_eval_frames = n;
         }
+        self.device.apply_precision(&mut cfg);
         cfg.validate()?;
         Ok(cfg)
     }

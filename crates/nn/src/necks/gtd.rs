@@ -31,6 +31,7 @@ use tch::nn::{self, Module};
 use tch::{Kind, Tensor};
 
 use super::{Neck, NeckOutput};
+use crate::precision::{conv2d, Conv2d};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -78,7 +79,7 @@ impl GtdConfig {
         let (reduce, expand) = if inner == channels {
             (None, None)
         } else {
-            let one = |name: &str, i, o| nn::conv2d(&vs / name, i, o, 1, Default::default());
+            let one = |name: &str, i, o| conv2d(&vs / name, i, o, 1, Default::default());
             (Some(one("reduce", channels, inner)), Some(one("expand", inner, channels)))
         };
         let convs = self
@@ -86,7 +87,7 @@ impl GtdConfig {
             .iter()
             .map(|&k| {
                 let c = nn::ConvConfig { padding: k / 2, ..Default::default() };
-                nn::conv2d(&vs / format!("conv{k}"), inner, inner, k, c)
+                conv2d(&vs / format!("conv{k}"), inner, inner, k, c)
             })
             .collect();
         let squeeze = (inner / self.reduction).max(1);
@@ -109,10 +110,10 @@ impl GtdConfig {
 }
 
 pub struct Gtd {
-    reduce: Option<nn::Conv2D>,
-    convs: Vec<nn::Conv2D>,
+    reduce: Option<Conv2d>,
+    convs: Vec<Conv2d>,
     se: nn::Sequential,
-    expand: Option<nn::Conv2D>,
+    expand: Option<Conv2d>,
     rotation: nn::Sequential,
     /// Scale of the residual offset (starts at 0).
     gamma: Tensor,
@@ -134,19 +135,22 @@ impl Gtd {
     }
 
     pub fn forward(&self, bev: &Tensor) -> (Tensor, Tensor) {
+        // In bf16 (mixed precision) the maps stay in `bev`'s kind; the pooled vectors, the
+        // attention MLP and the rotation regressor run in f32.
+        let kind = bev.kind();
         let d = self.descriptor_map(bev);
         let attention = self.se.forward(&d.mean_dim(&[2i64, 3][..], false, Kind::Float)).sigmoid();
         let b = attention.size()[0];
-        let attended = &d * attention.view([b, self.inner, 1, 1]);
+        let attended = &d * attention.view([b, self.inner, 1, 1]).to_kind(kind);
         let offset = match &self.expand {
             Some(e) => e.forward(&attended),
             None => attended,
         };
-        let out = (bev + offset * &self.gamma).relu();
+        let out = (bev + offset * self.gamma.to_kind(kind)).relu();
         // Without gradients the detached pass is not needed: inference reads D once.
         let descriptor =
             if bev.requires_grad() { self.descriptor_map(&bev.detach()) } else { d }.amax(&[2i64, 3][..], false);
-        (out, self.rotation.forward(&descriptor))
+        (out, self.rotation.forward(&descriptor.to_kind(Kind::Float)))
     }
 }
 
@@ -202,6 +206,9 @@ mod tests {
         let narrow = GtdConfig { inner_channels: Some(4), ..Default::default() }.init(vs.root() / "narrow", 16);
         let (y, rot) = narrow.forward(&x);
         assert_eq!((y.size(), rot.size()), (vec![2, 16, 12, 10], vec![2, 2]));
+        // Mixed precision: a bf16 map stays bf16, the pooled descriptor's regressor runs in f32.
+        let (y16, rot16) = narrow.forward(&x.to_kind(Kind::BFloat16));
+        assert_eq!((y16.kind(), rot16.kind(), y16.size()), (Kind::BFloat16, Kind::Float, vec![2, 16, 12, 10]));
         // L_rot trains the branch, not what feeds it.
         let x = x.set_requires_grad(true);
         let (_, rot) = narrow.forward(&x);

@@ -479,6 +479,8 @@ pub fn run_cell(ctx: &Ctx<'_>, cell: &Cell, dir: &Path, log: &mut Log) -> Result
                         min_score: st.labels.ignore_score,
                         batch_size: 4,
                         device,
+                        // The checkpoints' own: they were trained by this benchmark.
+                        precision: None,
                     },
                     &mut |_, _| Ok(()),
                 )?;

@@ -108,7 +108,7 @@ pub fn args(suite: &Path, out: &Path) -> BenchmarkArgs {
         merge: Vec::new(),
         list: false,
         force: false,
-        device: DeviceArgs { device: DeviceChoice::Cpu, torch_threads: Some(1) },
+        device: DeviceArgs { device: DeviceChoice::Cpu, torch_threads: Some(1), precision: None },
     }
 }
 
