@@ -60,6 +60,7 @@ pub mod roi_heads;
 pub mod scatter;
 pub mod sparse;
 pub mod target_assigner;
+pub mod testing;
 pub mod train;
 pub mod tta;
 pub mod upright_check;

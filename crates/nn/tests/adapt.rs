@@ -7,13 +7,9 @@ use std::path::Path;
 
 use pi3det_data::Platform;
 use pi3det_nn::adapt::pipeline::{self, AdaptConfig, AdaptEvent, AdaptOptions, Component, Stage};
-use pi3det_nn::backbone_2d::Backbone2dConfig;
 use pi3det_nn::checkpoint;
-use pi3det_nn::config::{PostConfig, TrainConfig};
 use pi3det_nn::data_loader::{open_split, Subset};
-use pi3det_nn::pillarize::PillarizeConfig;
-use pi3det_nn::roi_heads::RoiHeadConfig;
-use pi3det_nn::vfe::PillarVfeConfig;
+use pi3det_nn::testing::{tiny_detector, tiny_roi_head};
 use pi3det_nn::DetectorConfig;
 use pi3det_sim::{ExportOptions, PlatformPlan, SimConfig};
 use tch::{Device, Tensor};
@@ -23,41 +19,15 @@ static TORCH_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 fn config() -> AdaptConfig {
     let base = AdaptConfig::default();
-    let mut train = TrainConfig { epochs: 1, batch_size: 1, ckpt_every: 1, ..TrainConfig::default() };
-    train.augment = base.detector.train.augment.clone();
-    let detector = DetectorConfig {
+    let mut detector = DetectorConfig {
         name: "tiny_pi3det_net".into(),
-        shift_z: 1.9,
-        pillars: PillarizeConfig {
-            // Wide enough for a drone's ground (seen from up to 20 m, little of it nearby).
-            point_cloud_range: [-25.6, -25.6, -2.0, 25.6, 25.6, 4.0],
-            pillar_size: [0.8, 0.8],
-            max_points_per_pillar: 8,
-            max_pillars_train: 4000,
-            max_pillars_test: 4000,
-            voxel_height: None,
-        },
-        vfe: PillarVfeConfig { num_filters: vec![16] },
-        backbone: Backbone2dConfig {
-            layer_nums: vec![1, 1],
-            layer_strides: vec![2, 2],
-            num_filters: vec![16, 16],
-            upsample_strides: vec![1, 2],
-            num_upsample_filters: vec![16, 16],
-        },
-        roi_head: Some(RoiHeadConfig {
-            point_channels: 8,
-            shared_fc: vec![32],
-            cls_fc: vec![16],
-            reg_fc: vec![16],
-            ..Default::default()
-        }),
+        roi_head: Some(tiny_roi_head()),
         neck: base.detector.neck.clone(),
         pfa: Some(pi3det_nn::adapt::PfaConfig { latent_channels: 8, hidden_channels: 16, ..Default::default() }),
-        post: PostConfig { score_threshold: 0.05, ..PostConfig::default() },
-        train,
-        ..DetectorConfig::default()
+        // Wide enough for a drone's ground (seen from up to 20 m, little of it nearby).
+        ..tiny_detector(25.6, 0.8)
     };
+    detector.train.augment = base.detector.train.augment.clone();
     let mut cfg = AdaptConfig { name: "tiny".into(), detector, ..base };
     cfg.ka.epochs = 2;
     // An untrained PA model scores low: let its boxes through as pseudo-labels.

@@ -99,3 +99,29 @@ fn voxel_detector_checkpoint_round_trips() {
     let err = pi3det_nn::export::export(&mut det, &x, &dir.path().join("m.pt")).err().unwrap().to_string();
     assert!(err.contains("rulebooks"), "{err}");
 }
+
+/// Mixed precision on the Pi3DET-Net preset's network (the one that infers in bf16): the same
+/// weights give the f32 BEV map to within bf16's resolution, handed to the heads in f32.
+#[test]
+fn bf16_inference_matches_f32() {
+    use pi3det_nn::adapt::pipeline::AdaptConfig;
+    use pi3det_nn::precision::Precision;
+    use pi3det_nn::preprocess::Preprocessor;
+    tch::set_num_threads(1);
+    tch::manual_seed(0);
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/pi3det_net_cpu.toml");
+    let mut cfg = AdaptConfig::from_file(&path).unwrap().detector;
+    cfg.precision = Precision::F32;
+    let mut det = Detector::new(&cfg, Device::Cpu).unwrap();
+    let p = det.prep.pillarizer().unwrap().run(&frame().points, cfg.pillars.max_pillars_test);
+    let x = det.prep.collate_inputs(&[&p]);
+    let bev32 = det.forward_t(&x, false).unwrap().bev;
+    cfg.precision = Precision::Bf16;
+    det.prep = std::sync::Arc::new(Preprocessor::new(&cfg).unwrap());
+    let bev16 = det.forward_t(&x, false).unwrap().bev;
+    assert_eq!(bev16.kind(), tch::Kind::Float);
+    let err = (&bev16 - &bev32).abs().max().double_value(&[]);
+    let scale = bev32.abs().max().double_value(&[]);
+    assert!(scale > 0.0 && err < 0.05 * scale, "bf16 error {err} against max |bev| {scale}");
+    assert_eq!(det.predict(&x).unwrap().len(), 1);
+}

@@ -9,15 +9,13 @@ use std::sync::Arc;
 
 use pi3det_data::{DataError, FrameInfo, FrameMap, Mapped, Platform, PointCloud};
 use pi3det_geometry::View;
-use pi3det_nn::backbone_2d::Backbone2dConfig;
 use pi3det_nn::checkpoint;
-use pi3det_nn::config::{PostConfig, TrainConfig};
+use pi3det_nn::config::TrainConfig;
 use pi3det_nn::data_loader::{open_split, Subset};
 use pi3det_nn::detect;
-use pi3det_nn::pillarize::PillarizeConfig;
+use pi3det_nn::testing::tiny_detector;
 use pi3det_nn::train::{train, TrainOptions};
 use pi3det_nn::tta::TtaConfig;
-use pi3det_nn::vfe::PillarVfeConfig;
 use pi3det_nn::DetectorConfig;
 use pi3det_sim::{ExportOptions, PlatformPlan, SimConfig};
 use tch::{Device, Tensor};
@@ -28,29 +26,7 @@ fn config() -> DetectorConfig {
     // Every augmentation, ground-truth sampling included, so resuming must reproduce their draws.
     train.augment.push(pi3det_nn::augment::AugmentConfig::RandomPlatformJitter(Default::default()));
     train.augment.push(pi3det_nn::augment::AugmentConfig::RandomObjectRotation(Default::default()));
-    DetectorConfig {
-        name: "tiny".into(),
-        shift_z: 1.9,
-        pillars: PillarizeConfig {
-            point_cloud_range: [-12.8, -12.8, -2.0, 12.8, 12.8, 4.0],
-            pillar_size: [0.4, 0.4],
-            max_points_per_pillar: 8,
-            max_pillars_train: 4000,
-            max_pillars_test: 4000,
-            voxel_height: None,
-        },
-        vfe: PillarVfeConfig { num_filters: vec![16] },
-        backbone: Backbone2dConfig {
-            layer_nums: vec![1, 1],
-            layer_strides: vec![2, 2],
-            num_filters: vec![16, 16],
-            upsample_strides: vec![1, 2],
-            num_upsample_filters: vec![16, 16],
-        },
-        post: PostConfig { score_threshold: 0.05, ..PostConfig::default() },
-        train,
-        ..DetectorConfig::default()
-    }
+    DetectorConfig { train, ..tiny_detector(12.8, 0.4) }
 }
 
 /// Frames mirrored left/right (y → −y), boxes with them.

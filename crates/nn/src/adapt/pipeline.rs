@@ -195,9 +195,21 @@ pub enum AdaptEvent<'a> {
     Stage(&'static str),
     Message(String),
     Pa(train::Event<'a>),
-    Labels { done: usize, total: usize },
+    Labels {
+        done: usize,
+        total: usize,
+    },
     KaStep(&'a KaStep),
-    KaEpoch { epoch: usize, mean_loss: f64, seconds: f64 },
+    /// A finished KA epoch with its mean loss and the mean of each part: the source batches'
+    /// `L_det + λ_RoI L_RoI`, the target batches' `L_det`, and the unweighted `L_KL`.
+    KaEpoch {
+        epoch: usize,
+        mean_loss: f64,
+        mean_source: f64,
+        mean_target: f64,
+        mean_kl: f64,
+        seconds: f64,
+    },
 }
 
 /// Pseudo-label precision / recall of one way of making them.
@@ -247,12 +259,20 @@ fn check_class_names(infos: &[pi3det_data::FrameInfo], cfg: &DetectorConfig, wha
     )))
 }
 
-/// The parts of a config that shape the network (everything but training, post-processing and
-/// how the network computes: memory layout, precision).
+/// The parts of a config that shape the network (everything but training, post-processing, loss
+/// weights and how the network computes: memory layout, precision). A PA checkpoint may go on
+/// under other loss weights (e.g. another λ_KL for Knowledge-Adaptation).
 fn architecture(cfg: &DetectorConfig) -> toml::Table {
     let mut t: toml::Table = toml::from_str(&cfg.to_toml()).unwrap_or_default();
     for k in ["name", "train", "post", "loss_weights", "channels_last", "precision"] {
         t.remove(k);
+    }
+    for (table, keys) in [("pfa", &["roi_weight", "kl_weight"][..]), ("neck", &["rotation_weight"][..])] {
+        if let Some(toml::Value::Table(sub)) = t.get_mut(table) {
+            keys.iter().for_each(|k| {
+                sub.remove(*k);
+            });
+        }
     }
     t
 }
@@ -516,9 +536,22 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
             on_event(AdaptEvent::Stage("knowledge-adaptation"));
         }
         let t = Instant::now();
-        let mean_loss =
-            ka.epoch(&det, epoch, Some(&source), &target, None, opts.device, &mut |s| on_event(AdaptEvent::KaStep(s)))?;
-        on_event(AdaptEvent::KaEpoch { epoch, mean_loss, seconds: t.elapsed().as_secs_f64() });
+        let mut sums = [0.0f64; 4];
+        let mean_loss = ka.epoch(&det, epoch, Some(&source), &target, None, opts.device, &mut |s| {
+            for (sum, v) in sums.iter_mut().zip([s.source, s.target, s.kl, 1.0]) {
+                *sum += v;
+            }
+            on_event(AdaptEvent::KaStep(s))
+        })?;
+        let n = sums[3].max(1.0);
+        on_event(AdaptEvent::KaEpoch {
+            epoch,
+            mean_loss,
+            mean_source: sums[0] / n,
+            mean_target: sums[1] / n,
+            mean_kl: sums[2] / n,
+            seconds: t.elapsed().as_secs_f64(),
+        });
         let state = TrainState {
             epoch: epoch + 1,
             step: ka.optim.step,
@@ -623,5 +656,24 @@ mod tests {
                 .iter()
                 .any(|a| matches!(a, crate::augment::AugmentConfig::RandomPlatformJitter(_))));
         }
+    }
+
+    /// Loss weights, precision and layout do not make another network; widths and modules do.
+    #[test]
+    fn architecture_ignores_loss_weights() {
+        let base = AdaptConfig::default().detector;
+        let p = Path::new("pa.safetensors");
+        let mut other = base.clone();
+        other.pfa.as_mut().unwrap().kl_weight = 0.01;
+        other.pfa.as_mut().unwrap().roi_weight = 0.5;
+        other.precision = crate::precision::Precision::Bf16;
+        other.channels_last = !base.channels_last;
+        if let Some(crate::necks::NeckConfig::Gtd(g)) = other.neck.as_mut() {
+            g.rotation_weight = 1.0;
+        }
+        check_architecture(p, &base, &other).unwrap();
+        other.pfa.as_mut().unwrap().latent_channels += 1;
+        let err = check_architecture(p, &base, &other).unwrap_err().to_string();
+        assert!(err.contains("pfa"), "{err}");
     }
 }

@@ -547,7 +547,7 @@ pub fn run_cell(ctx: &Ctx<'_>, cell: &Cell, dir: &Path, log: &mut Log) -> Result
                 &mut |e| match e {
                     adapt::AdaptEvent::Message(m) => msgs.push(m),
                     adapt::AdaptEvent::Stage(s) => msgs.push(format!("stage: {s}")),
-                    adapt::AdaptEvent::KaEpoch { epoch, mean_loss, seconds } => {
+                    adapt::AdaptEvent::KaEpoch { epoch, mean_loss, seconds, .. } => {
                         msgs.push(format!("  KA epoch {} loss {mean_loss:.3} ({seconds:.0} s)", epoch + 1))
                     }
                     _ => {}

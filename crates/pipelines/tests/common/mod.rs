@@ -5,13 +5,10 @@
 use std::path::{Path, PathBuf};
 
 use pi3det_nn::adapt::pipeline::AdaptConfig;
-use pi3det_nn::backbone_2d::Backbone2dConfig;
 use pi3det_nn::cli::DeviceArgs;
-use pi3det_nn::config::{PostConfig, TrainConfig};
+use pi3det_nn::config::PostConfig;
 use pi3det_nn::device::DeviceChoice;
-use pi3det_nn::pillarize::PillarizeConfig;
-use pi3det_nn::roi_heads::RoiHeadConfig;
-use pi3det_nn::vfe::PillarVfeConfig;
+use pi3det_nn::testing::tiny_roi_head;
 use pi3det_nn::DetectorConfig;
 use pi3det_pipelines::benchmark::table::CellResult;
 use pi3det_pipelines::benchmark::BenchmarkArgs;
@@ -21,37 +18,11 @@ use pi3det_pipelines::benchmark::BenchmarkArgs;
 pub static TORCH_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 pub fn tiny_detector() -> DetectorConfig {
-    let train = TrainConfig { epochs: 1, batch_size: 1, ckpt_every: 1, ..TrainConfig::default() };
     DetectorConfig {
-        name: "tiny".into(),
-        shift_z: 1.9,
-        pillars: PillarizeConfig {
-            point_cloud_range: [-25.6, -25.6, -2.0, 25.6, 25.6, 4.0],
-            pillar_size: [0.8, 0.8],
-            max_points_per_pillar: 8,
-            max_pillars_train: 4000,
-            max_pillars_test: 4000,
-            voxel_height: None,
-        },
-        vfe: PillarVfeConfig { num_filters: vec![16] },
-        backbone: Backbone2dConfig {
-            layer_nums: vec![1, 1],
-            layer_strides: vec![2, 2],
-            num_filters: vec![16, 16],
-            upsample_strides: vec![1, 2],
-            num_upsample_filters: vec![16, 16],
-        },
-        roi_head: Some(RoiHeadConfig {
-            point_channels: 8,
-            shared_fc: vec![32],
-            cls_fc: vec![16],
-            reg_fc: vec![16],
-            ..Default::default()
-        }),
+        roi_head: Some(tiny_roi_head()),
         // An untrained detector scores low: keep its boxes so the self-training paths see labels.
         post: PostConfig { score_threshold: 0.01, ..PostConfig::default() },
-        train,
-        ..DetectorConfig::default()
+        ..pi3det_nn::testing::tiny_detector(25.6, 0.8)
     }
 }
 
