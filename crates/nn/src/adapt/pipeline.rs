@@ -201,7 +201,7 @@ pub enum AdaptEvent<'a> {
     },
     KaStep(&'a KaStep),
     /// A finished KA epoch with its mean loss and the mean of each part: the source batches'
-    /// `L_det + λ_RoI L_RoI`, the target batches' `L_det`, and the unweighted `L_KL`.
+    /// `L_det + λ_RoI L_RoI`, the target batches' `L_det`, and `λ_KL L_KL`.
     KaEpoch {
         epoch: usize,
         mean_loss: f64,

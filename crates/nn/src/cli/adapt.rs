@@ -130,14 +130,14 @@ pub fn adapt_with_progress(opts: AdaptOptions, quiet: bool) -> Result<AdaptRepor
             bar.set_length(s.total_steps as u64);
             bar.set_prefix(format!("KA epoch {}", s.epoch + 1));
             bar.set_message(format!(
-                "loss {:.3} (source {:.3}, target {:.3}, kl {:.4}) lr {:.1e}",
+                "loss {:.3} (source {:.3}, target {:.3}, λ_KL·KL {:.4}) lr {:.1e}",
                 s.loss, s.source, s.target, s.kl, s.lr
             ));
             bar.set_position(s.step as u64);
         }
         AdaptEvent::KaEpoch { epoch, mean_loss, mean_source, mean_target, mean_kl, seconds } => bar.suspend(|| {
             eprintln!(
-                "KA epoch {}: mean loss {mean_loss:.4} (source {mean_source:.3}, target {mean_target:.3}, kl {mean_kl:.4}), {seconds:.0} s",
+                "KA epoch {}: mean loss {mean_loss:.4} (source {mean_source:.3}, target {mean_target:.3}, λ_KL·KL {mean_kl:.4}), {seconds:.0} s",
                 epoch + 1
             )
         }),
