@@ -96,6 +96,14 @@ impl Detector {
     pub fn with_preprocessor(prep: Preprocessor, device: Device) -> Result<Self> {
         let prep = Arc::new(prep);
         let cfg = &prep.cfg;
+        if device == Device::Cpu
+            && [cfg.precision, cfg.train.precision].contains(&crate::precision::Precision::Bf16)
+            && !crate::precision::cpu_has_bf16()
+        {
+            tracing::warn!(
+                "precision bf16 on a CPU without native bfloat16: emulated, slower than f32 (`auto` picks f32 here)"
+            );
+        }
         let vs = VarStore::new(device);
         let root = vs.root();
         let bn = &cfg.batch_norm;

@@ -156,4 +156,14 @@ mod tests {
         let auto = Precision::Auto.compute_kind(Device::Cpu);
         assert_eq!(auto == Kind::BFloat16, cpu_has_bf16());
     }
+
+    /// A config names its precision; anything else is an error naming the choices.
+    #[test]
+    fn precision_in_configs() {
+        let cfg =
+            crate::DetectorConfig::from_toml_str("precision = \"auto\"\n[train]\nprecision = \"bf16\"\n").unwrap();
+        assert_eq!((cfg.precision, cfg.train.precision), (Precision::Auto, Precision::Bf16));
+        let e = crate::DetectorConfig::from_toml_str("precision = \"fp16\"\n").unwrap_err().to_string();
+        assert!(e.contains("fp16") && e.contains("bf16"), "{e}");
+    }
 }

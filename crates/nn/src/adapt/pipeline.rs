@@ -536,20 +536,22 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
             on_event(AdaptEvent::Stage("knowledge-adaptation"));
         }
         let t = Instant::now();
-        let mut sums = [0.0f64; 4];
+        // Sums of the source, target and λ_KL·KL parts over the epoch's steps.
+        let (mut source_sum, mut target_sum, mut kl_sum, mut steps) = (0.0, 0.0, 0.0, 0usize);
         let mean_loss = ka.epoch(&det, epoch, Some(&source), &target, None, opts.device, &mut |s| {
-            for (sum, v) in sums.iter_mut().zip([s.source, s.target, s.kl, 1.0]) {
-                *sum += v;
-            }
+            source_sum += s.source;
+            target_sum += s.target;
+            kl_sum += s.kl;
+            steps += 1;
             on_event(AdaptEvent::KaStep(s))
         })?;
-        let n = sums[3].max(1.0);
+        let n = steps.max(1) as f64;
         on_event(AdaptEvent::KaEpoch {
             epoch,
             mean_loss,
-            mean_source: sums[0] / n,
-            mean_target: sums[1] / n,
-            mean_kl: sums[2] / n,
+            mean_source: source_sum / n,
+            mean_target: target_sum / n,
+            mean_kl: kl_sum / n,
             seconds: t.elapsed().as_secs_f64(),
         });
         let state = TrainState {

@@ -95,8 +95,7 @@ pub fn adapt_with_progress(opts: AdaptOptions, quiet: bool) -> Result<AdaptRepor
         bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
     }
     bar.set_style(progress_style("{prefix} [{bar:25}] {pos}/{len} {elapsed}<{eta} {msg}"));
-    let mut on_event = |e: AdaptEvent<'_>| {
-        match e {
+    let mut on_event = |e: AdaptEvent<'_>| match e {
         AdaptEvent::Stage(s) => {
             bar.set_prefix(s);
             bar.set_position(0);
@@ -135,13 +134,10 @@ pub fn adapt_with_progress(opts: AdaptOptions, quiet: bool) -> Result<AdaptRepor
             ));
             bar.set_position(s.step as u64);
         }
-        AdaptEvent::KaEpoch { epoch, mean_loss, mean_source, mean_target, mean_kl, seconds } => bar.suspend(|| {
-            eprintln!(
-                "KA epoch {}: mean loss {mean_loss:.4} (source {mean_source:.3}, target {mean_target:.3}, λ_KL·KL {mean_kl:.4}), {seconds:.0} s",
-                epoch + 1
-            )
-        }),
-    }
+        AdaptEvent::KaEpoch { epoch, mean_loss, mean_source, mean_target, mean_kl, seconds } => {
+            let parts = format!("source {mean_source:.3}, target {mean_target:.3}, λ_KL·KL {mean_kl:.4}");
+            bar.suspend(|| eprintln!("KA epoch {}: mean loss {mean_loss:.4} ({parts}), {seconds:.0} s", epoch + 1))
+        }
     };
     let r = pipeline::run(opts, &mut on_event);
     bar.finish_and_clear();
