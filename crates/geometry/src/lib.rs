@@ -13,7 +13,7 @@ pub mod view;
 
 pub use box_fusion::{weighted_box_fusion, BoxFusionConfig, FusedBox, FusionMember};
 pub use boxes::Box3d;
-pub use iou::{bev_iou, bev_iou_matrix, iou_3d, iou_3d_matrix, IouMatrix};
+pub use iou::{bev_iou, bev_iou_matrix, iou_3d, iou_3d_matrix, BevFootprint, IouMatrix};
 pub use nms::{nms, NmsConfig};
 pub use pose::{level_from_sensor, Pose, PoseExt, RollPitchYaw};
 pub use view::View;

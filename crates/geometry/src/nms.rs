@@ -42,7 +42,7 @@ pub fn nms(boxes: &[Box3d], scores: &[f64], cfg: &NmsConfig) -> Vec<usize> {
             break;
         }
         for (m, s) in suppressed.iter_mut().enumerate().skip(k + 1) {
-            if !*s && bk.iou(&prints[m]) > cfg.iou_threshold {
+            if !*s && bk.iou_exceeds(&prints[m], cfg.iou_threshold) {
                 *s = true;
             }
         }

@@ -71,13 +71,15 @@ pub enum Event<'a> {
         database: usize,
     },
     Step(&'a StepInfo),
-    /// `data_wait_seconds`: time the training thread waited for the loader in this epoch.
+    /// `data_wait_seconds`: time the training thread waited for the loader in this epoch;
+    /// `phase_seconds`: where the steps' time went (forward, loss, backward, optimiser).
     EpochEnd {
         epoch: usize,
         mean_loss: f64,
         mean_terms: Vec<(&'static str, f64)>,
         seconds: f64,
         data_wait_seconds: f64,
+        phase_seconds: [(&'static str, f64); 4],
     },
     Eval {
         epoch: usize,
@@ -225,6 +227,7 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
         let mut t_wait = Instant::now();
         let mut waited = 0.0;
         let mut term_sums: Vec<(&'static str, f64)> = Vec::new();
+        let mut phases = [("forward", 0.0), ("loss", 0.0), ("backward", 0.0), ("optimiser", 0.0)];
         for (bi, batch) in loader.enumerate() {
             let batch = batch?;
             if batch.num_pillars < 2 {
@@ -246,7 +249,9 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
                 optim.step as u64 ^ 0x5eed,
             ));
             let out = det.forward_train(&x, &batch.gt, &mut rng)?;
+            let t_loss = Instant::now();
             let losses = det.loss(&out, &t, &batch.gt, Domain::Source)?;
+            let t_backward = Instant::now();
             // Once per run (also when resuming): a scale naming no term is a typo.
             if !scales_checked {
                 scales_checked = true;
@@ -261,6 +266,7 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
             let total = losses.total();
             optim.zero_grad();
             total.backward();
+            let t_update = Instant::now();
             let grad_norm = optim.clip_grad_norm(cfg.train.grad_clip);
             let loss = total.double_value(&[]);
             if !loss.is_finite() || !grad_norm.is_finite() {
@@ -269,6 +275,14 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
                 )));
             }
             optim.update(lr, beta1);
+            for (phase, (from, to)) in phases.iter_mut().zip([
+                (t_step, t_loss),
+                (t_loss, t_backward),
+                (t_backward, t_update),
+                (t_update, Instant::now()),
+            ]) {
+                phase.1 += (to - from).as_secs_f64();
+            }
             sum += loss;
             n += 1;
             let info = StepInfo {
@@ -300,7 +314,14 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
         state.train_seconds += seconds;
         state.last_loss = Some(mean_loss);
         let mean_terms = term_sums.iter().map(|(k, v)| (*k, v / n.max(1) as f64)).collect();
-        on_event(Event::EpochEnd { epoch, mean_loss, mean_terms, seconds, data_wait_seconds: waited });
+        on_event(Event::EpochEnd {
+            epoch,
+            mean_loss,
+            mean_terms,
+            seconds,
+            data_wait_seconds: waited,
+            phase_seconds: phases,
+        });
         let last = epoch + 1 == cfg.train.epochs;
         let mut log = EpochLog { epoch: epoch + 1, mean_loss, seconds, eval: None };
         if let Some(val) = opts.val.as_ref().filter(|v| !v.is_empty()) {

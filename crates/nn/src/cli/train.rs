@@ -114,13 +114,15 @@ pub fn train_with_progress(opts: TrainOptions, quiet: bool) -> Result<train::Tra
             ));
             bar.set_position(s.step as u64);
         }
-        Event::EpochEnd { epoch, mean_loss, mean_terms, seconds, data_wait_seconds } => {
+        Event::EpochEnd { epoch, mean_loss, mean_terms, seconds, data_wait_seconds, phase_seconds } => {
             let terms: Vec<String> = mean_terms.iter().map(|(k, v)| format!("{k} {v:.3}")).collect();
+            let phases: Vec<String> = phase_seconds.iter().map(|(k, v)| format!("{k} {v:.0}")).collect();
             bar.suspend(|| {
                 eprintln!(
-                    "epoch {}: mean loss {mean_loss:.4} ({}), {seconds:.0} s ({data_wait_seconds:.0} s waiting for data)",
+                    "epoch {}: mean loss {mean_loss:.4} ({}), {seconds:.0} s ({}, {data_wait_seconds:.0} s waiting for data)",
                     epoch + 1,
-                    terms.join(", ")
+                    terms.join(", "),
+                    phases.join(", ")
                 )
             });
         }

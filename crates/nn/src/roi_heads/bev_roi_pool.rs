@@ -1,13 +1,14 @@
 //! RoI feature pooling from the BEV map: bilinear samples of the `[B, C, H, W]` map at points laid
-//! out in each rotated RoI (libtorch's `grid_sampler_2d`, zero outside the map), either a `G × G`
-//! lattice of cell centres of the RoI (optionally enlarged by a margin in metres on every side) or
-//! the cheap 5-point layout of the RoI centre and its four face centres.
+//! out in each rotated RoI (zero outside the map), either a `G × G` lattice of cell centres of the
+//! RoI (optionally enlarged by a margin in metres on every side) or the cheap 5-point layout of
+//! the RoI centre and its four face centres.
 //!
 //! Map geometry ([`CenterMap`]): row = y, column = x; cell `(i, j)` covers
 //! `x ∈ [origin_x + j·cell_x, origin_x + (j+1)·cell_x)` (likewise y), and its feature is the value
-//! at the cell's centre. With `align_corners = false` the sampler puts pixel `j`'s centre at the
-//! normalised coordinate `(2j + 1)/W − 1`, so a point maps to `g_x = 2(x − origin_x)/(W·cell_x) − 1`
-//! (and `g_y` likewise): a point on a cell centre reads exactly that cell.
+//! at the cell's centre: a point at `x` sits at pixel coordinate `(x − origin_x)/cell_x − ½`, and
+//! one on a cell centre reads exactly that cell. These are the values of libtorch's
+//! `grid_sampler_2d` with `align_corners = false` and zero padding, computed as gathers (see
+//! [`bilinear`]).
 
 use serde::{Deserialize, Serialize};
 use tch::{Kind, Tensor};
@@ -135,13 +136,43 @@ impl BevRoiPool {
             return Err(NnError::Input(format!("roi pool: bev is {h}×{w}, the map geometry {}×{}", map.h, map.w)));
         }
         let pts = self.sample_points(&rois.to_kind(Kind::Double)); // [B, N, P, 2], f64 for the metres
-        let gx = (pts.select(-1, 0) - map.origin[0]) * (2.0 / (map.w as f64 * map.cell[0])) - 1.0;
-        let gy = (pts.select(-1, 1) - map.origin[1]) * (2.0 / (map.h as f64 * map.cell[1])) - 1.0;
-        let grid = Tensor::stack(&[gx, gy], -1).to_kind(bev.kind()).to_device(bev.device());
-        // interpolation 0 = bilinear, padding 0 = zeros.
-        let out = bev.f_grid_sampler_2d(&grid, 0, 0, false)?; // [B, C, N, P]
-        Ok(out.permute([0, 2, 1, 3]))
+                                                                   // Pixel coordinates with cell centres on integers (the sampler's align_corners = false).
+        let px = (pts.select(-1, 0) - map.origin[0]) / map.cell[0] - 0.5;
+        let py = (pts.select(-1, 1) - map.origin[1]) / map.cell[1] - 0.5;
+        Ok(bilinear(bev, &px, &py))
     }
+}
+
+/// Bilinear samples of `bev [B, C, H, W]` at pixel coordinates `px, py [B, N, P]` (f64), zero
+/// outside the map: `[B, N, C, P]`, the values of `grid_sampler_2d` (zero padding,
+/// align_corners = false). Written as gathers of the map's `[B·H·W, C]` rows (a view of a
+/// channels-last map) so that the gradient is one `index_add` into a map-sized buffer: libtorch's
+/// CPU grid-sampler backward took 27 ms on the preset's 192 × 128 × 128 map for 128 RoIs of 36
+/// samples, about a tenth of a training step.
+fn bilinear(bev: &Tensor, px: &Tensor, py: &Tensor) -> Tensor {
+    let (b, c, h, w) = bev.size4().expect("bev is [B, C, H, W]");
+    let (n, p) = (px.size()[1], px.size()[2]);
+    let dev = bev.device();
+    let (x0, y0) = (px.floor(), py.floor());
+    let (fx, fy) = (px - &x0, py - &y0);
+    let frame = Tensor::arange(b, (Kind::Int64, dev)).view([b, 1, 1]) * (h * w);
+    let x0 = x0.to_device(dev).to_kind(Kind::Int64);
+    let y0 = y0.to_device(dev).to_kind(Kind::Int64);
+    let mut index = Vec::with_capacity(4);
+    let mut weight = Vec::with_capacity(4);
+    for (dy, wy) in [(0, 1.0 - &fy), (1, fy.shallow_clone())] {
+        for (dx, wx) in [(0, 1.0 - &fx), (1, fx.shallow_clone())] {
+            let (xi, yi) = (&x0 + dx, &y0 + dy);
+            let inside = xi.ge(0).logical_and(&xi.lt(w)).logical_and(&yi.ge(0)).logical_and(&yi.lt(h));
+            index.push(&frame + yi.clamp(0, h - 1) * w + xi.clamp(0, w - 1));
+            weight.push((wy.shallow_clone() * wx).to_device(dev) * inside.to_kind(Kind::Double));
+        }
+    }
+    let index = Tensor::stack(&index, 0).view([-1]);
+    let weight = Tensor::stack(&weight, 0).to_kind(bev.kind()).view([4, b * n * p, 1]);
+    let rows = bev.permute([0, 2, 3, 1]).reshape([b * h * w, c]);
+    let corners = rows.index_select(0, &index).view([4, b * n * p, c]);
+    (corners * weight).sum_dim_intlist(&[0i64][..], false, bev.kind()).view([b, n, p, c]).permute([0, 1, 3, 2])
 }
 
 #[cfg(test)]
@@ -251,6 +282,29 @@ mod tests {
                 assert!((got[c * 5 + p] - manual(c, w[0], w[1])).abs() < 1e-4);
             }
         }
+    }
+
+    /// The gathers give `grid_sampler_2d`'s values and map gradients, on a channels-last map
+    /// and with samples off the map and on its edges.
+    #[test]
+    fn gathers_equal_the_grid_sampler() {
+        tch::manual_seed(5);
+        let (b, c, h, w) = (2, 3, 6, 7);
+        let map = Tensor::randn([b, h, w, c], (Kind::Float, Device::Cpu)).permute([0, 3, 1, 2]);
+        let px = Tensor::rand([b, 4, 5], (Kind::Double, Device::Cpu)) * (w as f64 + 2.0) - 1.5;
+        let py = Tensor::rand([b, 4, 5], (Kind::Double, Device::Cpu)) * (h as f64 + 2.0) - 1.5;
+        let _ = px.get(0).get(0).get(0).fill_(-0.5);
+        let _ = py.get(0).get(0).get(0).fill_(h as f64 - 0.5);
+        let grid = Tensor::stack(&[(&px + 0.5) * (2.0 / w as f64) - 1.0, (&py + 0.5) * (2.0 / h as f64) - 1.0], -1)
+            .to_kind(Kind::Float);
+        let x = map.set_requires_grad(true);
+        let want = x.grid_sampler_2d(&grid, 0, 0, false).permute([0, 2, 1, 3]);
+        let weights = Tensor::randn(want.size(), (Kind::Float, Device::Cpu));
+        let g_want = Tensor::run_backward(&[(&want * &weights).sum(Kind::Float)], &[&x], false, false);
+        let got = bilinear(&x, &px, &py);
+        let g_got = Tensor::run_backward(&[(&got * &weights).sum(Kind::Float)], &[&x], false, false);
+        assert!(got.allclose(&want, 1e-5, 1e-6, false), "{got} vs {want}");
+        assert!(g_got[0].allclose(&g_want[0], 1e-5, 1e-6, false));
     }
 
     #[test]
