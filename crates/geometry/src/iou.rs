@@ -6,7 +6,7 @@ use crate::boxes::Box3d;
 use crate::polygon::quad_intersection_area;
 
 /// A box's bird's-eye-view footprint with what every pairwise test needs (corners, circumradius,
-/// area) computed once: NMS and IoU matrices meet each box many times, and the corners' sin/cos
+/// area, bounding box) computed once: NMS and IoU matrices meet each box many times, and the corners' sin/cos
 /// and the radius were most of a pair's cost when the circles do not overlap.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BevFootprint {
@@ -15,11 +15,22 @@ pub struct BevFootprint {
     pub radius: f64,
     pub area: f64,
     pub corners: [[f64; 2]; 4],
+    /// `[min x, min y, max x, max y]` of the corners.
+    pub aabb: [f64; 4],
 }
 
 impl BevFootprint {
     pub fn new(b: &Box3d) -> Self {
-        Self { x: b.x, y: b.y, radius: b.bev_radius(), area: b.dx * b.dy, corners: b.bev_corners() }
+        let corners = b.bev_corners();
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for c in &corners {
+            for k in 0..2 {
+                lo[k] = lo[k].min(c[k]);
+                hi[k] = hi[k].max(c[k]);
+            }
+        }
+        let aabb = [lo[0], lo[1], hi[0], hi[1]];
+        Self { x: b.x, y: b.y, radius: b.bev_radius(), area: b.dx * b.dy, corners, aabb }
     }
 
     /// Area of the intersection with `other` (0 when the circumscribed circles are apart).
@@ -44,18 +55,9 @@ impl BevFootprint {
         if self.area.min(other.area) <= need {
             return false;
         }
-        let (a, b) = (self.aabb(), other.aabb());
+        let (a, b) = (&self.aabb, &other.aabb);
         let overlap = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0) * (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
         overlap > need && self.iou(other) > threshold
-    }
-
-    /// `[min x, min y, max x, max y]` of the corners.
-    fn aabb(&self) -> [f64; 4] {
-        let c = &self.corners;
-        let (xs, ys) = ([c[0][0], c[1][0], c[2][0], c[3][0]], [c[0][1], c[1][1], c[2][1], c[3][1]]);
-        let min = |v: [f64; 4]| v.into_iter().fold(f64::INFINITY, f64::min);
-        let max = |v: [f64; 4]| v.into_iter().fold(f64::NEG_INFINITY, f64::max);
-        [min(xs), min(ys), max(xs), max(ys)]
     }
 }
 

@@ -184,7 +184,7 @@ impl Gtd {
             .to_kind(Kind::Float)
             .view([n, k_max, k_max, c_in])
             .permute([0, 3, 1, 2]);
-        let f32 = |t: &Tensor| t.to_kind(Kind::Float);
+        // The weights are f32 in every precision (the conv wrappers cast them per call).
         let reduced = match &self.reduce {
             Some(r) => windows.conv2d(&r.conv.ws, r.conv.bs.as_ref(), [1; 2], [0; 2], [1; 2], 1).relu(),
             None => windows,
@@ -198,7 +198,7 @@ impl Gtd {
                 let k = c.conv.ws.size()[2];
                 let o = (k_max - k) / 2;
                 let centre = reduced.narrow(2, o, k).narrow(3, o, k);
-                centre.conv2d(&f32(&c.conv.ws), c.conv.bs.as_ref().map(f32), [1; 2], [0; 2], [1; 2], 1).relu()
+                centre.conv2d(&c.conv.ws, c.conv.bs.as_ref(), [1; 2], [0; 2], [1; 2], 1).relu()
             })
             .reduce(|a, b| a + b)
             .expect("at least one kernel size");

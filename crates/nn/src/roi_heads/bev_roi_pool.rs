@@ -135,8 +135,9 @@ impl BevRoiPool {
         if h != map.h as i64 || w != map.w as i64 {
             return Err(NnError::Input(format!("roi pool: bev is {h}×{w}, the map geometry {}×{}", map.h, map.w)));
         }
-        let pts = self.sample_points(&rois.to_kind(Kind::Double)); // [B, N, P, 2], f64 for the metres
-                                                                   // Pixel coordinates with cell centres on integers (the sampler's align_corners = false).
+        // [B, N, P, 2], f64 for the metres.
+        let pts = self.sample_points(&rois.to_kind(Kind::Double));
+        // Pixel coordinates with cell centres on integers (the sampler's align_corners = false).
         let px = (pts.select(-1, 0) - map.origin[0]) / map.cell[0] - 0.5;
         let py = (pts.select(-1, 1) - map.origin[1]) / map.cell[1] - 0.5;
         Ok(bilinear(bev, &px, &py))
