@@ -317,8 +317,8 @@ impl Detector {
 
     /// λ_KL times PFA's `L_KL` between a source and a target batch's latents.
     pub fn kl_loss(&self, source: &Latent, target: &Latent) -> Option<Tensor> {
-        let w = self.cfg().pfa.as_ref()?.kl_weight;
-        Some(crate::adapt::pfa::kl_loss(source, target)? * w)
+        let cfg = self.cfg().pfa.as_ref()?;
+        Some(crate::adapt::pfa::kl_loss(source, target, cfg.kl_estimator)? * cfg.kl_weight)
     }
 
     /// Final detections per frame in the detector's frame: the refined RoIs (second stage) or

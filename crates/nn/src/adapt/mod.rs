@@ -20,5 +20,5 @@ pub mod pipeline;
 pub mod pseudo_labels;
 pub mod vpp;
 
-pub use pfa::{Latent, Pfa, PfaConfig};
+pub use pfa::{KlEstimator, Latent, Pfa, PfaConfig};
 pub use vpp::{AttitudeSource, VirtualPlatformPose, VppConfig, VppCounts};

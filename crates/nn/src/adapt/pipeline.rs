@@ -195,21 +195,21 @@ pub enum AdaptEvent<'a> {
     Stage(&'static str),
     Message(String),
     Pa(train::Event<'a>),
-    Labels {
-        done: usize,
-        total: usize,
-    },
+    Labels { done: usize, total: usize },
     KaStep(&'a KaStep),
-    /// A finished KA epoch with its mean loss and the mean of each part: the source batches'
-    /// `L_det + λ_RoI L_RoI`, the target batches' `L_det`, and `λ_KL L_KL`.
-    KaEpoch {
-        epoch: usize,
-        mean_loss: f64,
-        mean_source: f64,
-        mean_target: f64,
-        mean_kl: f64,
-        seconds: f64,
-    },
+    KaEpoch(KaEpochLoss),
+}
+
+/// A finished KA epoch (0-based) with its mean loss and the mean of each part: the source
+/// batches' `L_det + λ_RoI L_RoI`, the target batches' `L_det`, and `λ_KL L_KL`.
+#[derive(Debug, Clone, Copy, Serialize, Default)]
+pub struct KaEpochLoss {
+    pub epoch: usize,
+    pub mean_loss: f64,
+    pub mean_source: f64,
+    pub mean_target: f64,
+    pub mean_kl: f64,
+    pub seconds: f64,
 }
 
 /// Pseudo-label precision / recall of one way of making them.
@@ -237,6 +237,8 @@ pub struct AdaptReport {
     pub adapted: Option<ApSummary>,
     pub pseudo_labels: usize,
     pub pseudo_label_quality: Vec<QualityRow>,
+    /// The KA epochs this run trained (a resumed run: the epochs after the resume).
+    pub ka_epochs: Vec<KaEpochLoss>,
     pub pa_seconds: f64,
     pub ka_seconds: f64,
     pub total_seconds: f64,
@@ -267,7 +269,8 @@ fn architecture(cfg: &DetectorConfig) -> toml::Table {
     for k in ["name", "train", "post", "loss_weights", "channels_last", "precision"] {
         t.remove(k);
     }
-    for (table, keys) in [("pfa", &["roi_weight", "kl_weight"][..]), ("neck", &["rotation_weight"][..])] {
+    let loss_settings = [("pfa", &["roi_weight", "kl_weight", "kl_estimator"][..]), ("neck", &["rotation_weight"][..])];
+    for (table, keys) in loss_settings {
         if let Some(toml::Value::Table(sub)) = t.get_mut(table) {
             keys.iter().for_each(|k| {
                 sub.remove(*k);
@@ -546,14 +549,16 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
             on_event(AdaptEvent::KaStep(s))
         })?;
         let n = steps.max(1) as f64;
-        on_event(AdaptEvent::KaEpoch {
+        let summary = KaEpochLoss {
             epoch,
             mean_loss,
             mean_source: source_sum / n,
             mean_target: target_sum / n,
             mean_kl: kl_sum / n,
             seconds: t.elapsed().as_secs_f64(),
-        });
+        };
+        report.ka_epochs.push(summary);
+        on_event(AdaptEvent::KaEpoch(summary));
         let state = TrainState {
             epoch: epoch + 1,
             step: ka.optim.step,
@@ -660,7 +665,8 @@ mod tests {
         }
     }
 
-    /// Loss weights, precision and layout do not make another network; widths and modules do.
+    /// Loss weights and estimators, precision and layout do not make another network; widths and
+    /// modules do.
     #[test]
     fn architecture_ignores_loss_weights() {
         let base = AdaptConfig::default().detector;
@@ -668,6 +674,7 @@ mod tests {
         let mut other = base.clone();
         other.pfa.as_mut().unwrap().kl_weight = 0.01;
         other.pfa.as_mut().unwrap().roi_weight = 0.5;
+        other.pfa.as_mut().unwrap().kl_estimator = crate::adapt::KlEstimator::Mixture;
         other.precision = crate::precision::Precision::Bf16;
         other.channels_last = !base.channels_last;
         if let Some(crate::necks::NeckConfig::Gtd(g)) = other.neck.as_mut() {

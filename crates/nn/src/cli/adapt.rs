@@ -134,9 +134,10 @@ pub fn adapt_with_progress(opts: AdaptOptions, quiet: bool) -> Result<AdaptRepor
             ));
             bar.set_position(s.step as u64);
         }
-        AdaptEvent::KaEpoch { epoch, mean_loss, mean_source, mean_target, mean_kl, seconds } => {
-            let parts = format!("source {mean_source:.3}, target {mean_target:.3}, λ_KL·KL {mean_kl:.4}");
-            bar.suspend(|| eprintln!("KA epoch {}: mean loss {mean_loss:.4} ({parts}), {seconds:.0} s", epoch + 1))
+        AdaptEvent::KaEpoch(e) => {
+            let parts = format!("source {:.3}, target {:.3}, λ_KL·KL {:.4}", e.mean_source, e.mean_target, e.mean_kl);
+            let line = format!("KA epoch {}: mean loss {:.4} ({parts}), {:.0} s", e.epoch + 1, e.mean_loss, e.seconds);
+            bar.suspend(|| eprintln!("{line}"))
         }
     };
     let r = pipeline::run(opts, &mut on_event);

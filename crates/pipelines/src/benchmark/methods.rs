@@ -547,8 +547,8 @@ pub fn run_cell(ctx: &Ctx<'_>, cell: &Cell, dir: &Path, log: &mut Log) -> Result
                 &mut |e| match e {
                     adapt::AdaptEvent::Message(m) => msgs.push(m),
                     adapt::AdaptEvent::Stage(s) => msgs.push(format!("stage: {s}")),
-                    adapt::AdaptEvent::KaEpoch { epoch, mean_loss, seconds, .. } => {
-                        msgs.push(format!("  KA epoch {} loss {mean_loss:.3} ({seconds:.0} s)", epoch + 1))
+                    adapt::AdaptEvent::KaEpoch(k) => {
+                        msgs.push(format!("  KA epoch {} loss {:.3} ({:.0} s)", k.epoch + 1, k.mean_loss, k.seconds))
                     }
                     _ => {}
                 },
