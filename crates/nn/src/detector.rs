@@ -297,7 +297,7 @@ impl Detector {
                 losses.add("rot", l * neck.rotation_weight());
             }
         }
-        if let (Some(pfa), Some(z)) = (&self.pfa, self.latent(out)) {
+        if let (Some(pfa), Some(z)) = (&self.pfa, self.latent(out, Domain::Source)) {
             if let Some(l) = pfa.roi_loss(&z?) {
                 losses.add("pfa_roi", l * self.cfg().pfa.as_ref().map_or(0.0, |c| c.roi_weight));
             }
@@ -306,11 +306,13 @@ impl Detector {
     }
 
     /// PFA's latent Gaussians of a training pass's sampled RoIs (foreground: regressed RoIs);
-    /// `None` without PFA or a second stage.
-    pub fn latent(&self, out: &Forward) -> Option<Result<Latent>> {
+    /// `None` without PFA or a second stage. Target RoIs skip the encoder's weights when the
+    /// config keeps `L_KL` out of the encoder.
+    pub fn latent(&self, out: &Forward, domain: Domain) -> Option<Result<Latent>> {
         let (pfa, roi) = (self.pfa.as_ref()?, out.roi.as_ref()?);
+        let detach = domain == Domain::Target && self.cfg().pfa.as_ref().is_some_and(|c| !c.kl_into_encoder);
         Some(match &roi.targets {
-            Some(t) => Ok(pfa.encode(&roi.out.features, &t.roi_labels.ge(0), &t.reg_valid.gt(0.5))),
+            Some(t) => Ok(pfa.encode(&roi.out.features, &t.roi_labels.ge(0), &t.reg_valid.gt(0.5), detach)),
             None => Err(NnError::Input("PFA needs a forward_train pass (sampled RoIs)".into())),
         })
     }

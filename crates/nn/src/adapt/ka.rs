@@ -241,6 +241,6 @@ fn domain_pass(
     let targets = b.targets.as_ref().ok_or_else(|| NnError::Loader("batch without targets".into()))?;
     let out = det.forward_train(&x, &b.gt, rng)?;
     let losses = det.loss(&out, &targets.to_device(device), &b.gt, domain)?;
-    let z = det.latent(&out).transpose()?;
+    let z = det.latent(&out, domain).transpose()?;
     Ok((losses.total(), z))
 }

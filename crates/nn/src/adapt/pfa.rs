@@ -41,6 +41,11 @@ pub struct PfaConfig {
     pub kl_weight: f64,
     /// How `L_KL` is estimated from a batch's RoIs (see the module header).
     pub kl_estimator: KlEstimator,
+    /// Whether `L_KL` trains the μ / log σ² encoder. When false the target RoIs go through the
+    /// encoder with its weights detached: the encoder learns from `L_RoI` alone, and the KL can
+    /// only be lowered by moving the target's RoI features (the detector's), not by the two
+    /// small MLPs absorbing the shift.
+    pub kl_into_encoder: bool,
 }
 
 /// The estimator of `L_KL` (see the module header).
@@ -62,6 +67,7 @@ impl Default for PfaConfig {
             roi_weight: 0.2,
             kl_weight: 1e-4,
             kl_estimator: KlEstimator::Moments,
+            kl_into_encoder: true,
         }
     }
 }
@@ -79,19 +85,32 @@ impl PfaConfig {
     pub fn init(&self, vs: nn::Path, in_features: i64) -> Pfa {
         let (h, l) = (self.hidden_channels, self.latent_channels);
         let mlp = |name: &str| {
-            nn::seq()
-                .add(nn::linear(&vs / format!("{name}1"), in_features, h, Default::default()))
-                .add_fn(|x| x.relu())
-                .add(nn::linear(&vs / format!("{name}2"), h, l, Default::default()))
+            [
+                nn::linear(&vs / format!("{name}1"), in_features, h, Default::default()),
+                nn::linear(&vs / format!("{name}2"), h, l, Default::default()),
+            ]
         };
         Pfa { mu: mlp("mu"), logvar: mlp("logvar"), cls: nn::linear(&vs / "cls", l, 1, Default::default()) }
     }
 }
 
 pub struct Pfa {
-    mu: nn::Sequential,
-    logvar: nn::Sequential,
+    mu: [nn::Linear; 2],
+    logvar: [nn::Linear; 2],
     cls: nn::Linear,
+}
+
+/// `Linear → ReLU → Linear` on `x`, optionally with the weights detached (no gradient reaches
+/// them; the input still gets one).
+fn mlp(layers: &[nn::Linear; 2], x: &Tensor, detach_weights: bool) -> Tensor {
+    let apply = |l: &nn::Linear, x: &Tensor| {
+        if detach_weights {
+            x.linear(&l.ws.detach(), l.bs.as_ref().map(Tensor::detach))
+        } else {
+            l.forward(x)
+        }
+    };
+    apply(&layers[1], &apply(&layers[0], x).relu())
 }
 
 /// The latent Gaussians of a batch's RoIs (padding rows removed).
@@ -105,14 +124,15 @@ pub struct Latent {
 }
 
 impl Pfa {
-    /// `features [B, N, F]`, `valid [B, N]` (bool, real RoIs), `foreground [B, N]` (bool).
-    pub fn encode(&self, features: &Tensor, valid: &Tensor, foreground: &Tensor) -> Latent {
+    /// `features [B, N, F]`, `valid [B, N]` (bool, real RoIs), `foreground [B, N]` (bool);
+    /// `detach_weights`: encode without a gradient to the encoder's weights.
+    pub fn encode(&self, features: &Tensor, valid: &Tensor, foreground: &Tensor, detach_weights: bool) -> Latent {
         let f = features.size()[2];
         let keep = valid.view([-1]).nonzero().view([-1]);
         let rows = features.reshape([-1, f]).index_select(0, &keep);
         Latent {
-            mu: self.mu.forward(&rows),
-            logvar: self.logvar.forward(&rows).clamp(-10.0, 10.0),
+            mu: mlp(&self.mu, &rows, detach_weights),
+            logvar: mlp(&self.logvar, &rows, detach_weights).clamp(-10.0, 10.0),
             foreground: foreground.view([-1]).index_select(0, &keep),
         }
     }
@@ -307,6 +327,31 @@ mod tests {
         assert!(e.contains("wasserstein") && e.contains("mixture"), "{e}");
     }
 
+    /// With the encoder's weights detached on the target, `L_KL` reaches the target's RoI
+    /// features and none of the encoder's weights; attached, it trains the encoder too.
+    #[test]
+    fn kl_through_a_detached_encoder_moves_only_features() {
+        for detach in [true, false] {
+            tch::manual_seed(1);
+            let vs = nn::VarStore::new(Device::Cpu);
+            let pfa = PfaConfig { latent_channels: 4, hidden_channels: 8, ..Default::default() }.init(vs.root(), 6);
+            let all = Tensor::ones([1, 3], (Kind::Bool, Device::Cpu));
+            let fg = Tensor::zeros([1, 3], (Kind::Bool, Device::Cpu));
+            let fs = Tensor::randn([1, 3, 6], (Kind::Float, Device::Cpu));
+            let ft = (Tensor::randn([1, 3, 6], (Kind::Float, Device::Cpu)) + 2.0).set_requires_grad(true);
+            let zs = pfa.encode(&fs, &all, &fg, false);
+            let zt = pfa.encode(&ft, &all, &fg, detach);
+            kl_loss(&zs, &zt, KlEstimator::Mixture).unwrap().backward();
+            let weight_grad: f64 = vs
+                .trainable_variables()
+                .iter()
+                .map(|v| if v.grad().defined() { v.grad().abs().sum(Kind::Float).double_value(&[]) } else { 0.0 })
+                .sum();
+            assert!(ft.grad().abs().sum(Kind::Float).double_value(&[]) > 0.0);
+            assert_eq!(weight_grad == 0.0, detach, "detach {detach}: encoder gradient {weight_grad}");
+        }
+    }
+
     #[test]
     fn encoder_shapes_and_roi_loss() {
         tch::manual_seed(0);
@@ -315,7 +360,7 @@ mod tests {
         let feats = Tensor::randn([2, 5, 12], (Kind::Float, Device::Cpu));
         let valid = Tensor::from_slice(&[true, true, true, false, false, true, true, true, true, true]).view([2, 5]);
         let fg = Tensor::from_slice(&[true, false, false, false, false, true, true, false, false, false]).view([2, 5]);
-        let z = pfa.encode(&feats, &valid, &fg);
+        let z = pfa.encode(&feats, &valid, &fg, false);
         assert_eq!(z.mu.size(), vec![8, 8]);
         assert_eq!(z.foreground.sum(Kind::Int64).int64_value(&[]), 3);
         let l = pfa.roi_loss(&z).unwrap();

@@ -269,7 +269,10 @@ fn architecture(cfg: &DetectorConfig) -> toml::Table {
     for k in ["name", "train", "post", "loss_weights", "channels_last", "precision"] {
         t.remove(k);
     }
-    let loss_settings = [("pfa", &["roi_weight", "kl_weight", "kl_estimator"][..]), ("neck", &["rotation_weight"][..])];
+    let loss_settings = [
+        ("pfa", &["roi_weight", "kl_weight", "kl_estimator", "kl_into_encoder"][..]),
+        ("neck", &["rotation_weight"][..]),
+    ];
     for (table, keys) in loss_settings {
         if let Some(toml::Value::Table(sub)) = t.get_mut(table) {
             keys.iter().for_each(|k| {
@@ -675,6 +678,7 @@ mod tests {
         other.pfa.as_mut().unwrap().kl_weight = 0.01;
         other.pfa.as_mut().unwrap().roi_weight = 0.5;
         other.pfa.as_mut().unwrap().kl_estimator = crate::adapt::KlEstimator::Mixture;
+        other.pfa.as_mut().unwrap().kl_into_encoder = false;
         other.precision = crate::precision::Precision::Bf16;
         other.channels_last = !base.channels_last;
         if let Some(crate::necks::NeckConfig::Gtd(g)) = other.neck.as_mut() {
