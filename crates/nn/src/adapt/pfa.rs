@@ -20,9 +20,13 @@
 //!   `L_KL = KL(p_T ‖ p_S) ≈ mean_j [log p_T(ξ_j) − log p_S(ξ_j)]` over one reparameterised sample
 //!   `ξ_j` per target RoI. Over all RoIs, without a foreground / background split: a mixture is
 //!   multimodal, and the reverse direction only asks every target sample to lie where some source
-//!   RoI has density, so it needs neither the target's pseudo-labels (on the drone they find 2 %
-//!   of the cars: the rest are sampled as background) nor the same foreground share in both
-//!   domains.
+//!   RoI has density, so it needs neither the target's pseudo-labels (on the demo's drone their
+//!   positives find 2 % of the cars and 68 % have no box even in the ignored band: those cars'
+//!   RoIs are sampled as background) nor the same foreground share in both domains.
+//!
+//! Measured on three Pre-Adaptation models (README, "PFA's KL on three Pre-Adaptation models"):
+//! neither estimator, nor the KL kept out of the encoder (`kl_into_encoder = false`), adds Car AP
+//! against no KL on the simulated drone and quadruped.
 
 use serde::{Deserialize, Serialize};
 use tch::nn::{self, Module};
