@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::augment::AugmentConfig;
 use crate::backbone_2d::Backbone2dConfig;
+use crate::config_override::{read_config, ConfigOverride};
 use crate::dense_heads::{AnchorHeadConfig, AnyAssigner, AnyDenseHead, CenterHeadConfig};
 use crate::error::{NnError, Result};
 use crate::necks::NeckConfig;
@@ -253,9 +254,12 @@ impl DetectorConfig {
     }
 
     pub fn from_file(path: &Path) -> Result<Self> {
-        let s = std::fs::read_to_string(path).map_err(|e| NnError::io(path, e))?;
-        let cfg: Self =
-            toml::from_str(&s).map_err(|e| NnError::ConfigFile { path: path.to_path_buf(), message: e.to_string() })?;
+        Self::from_file_with(path, &[])
+    }
+
+    /// The file with `--set` overrides applied before it is read.
+    pub fn from_file_with(path: &Path, overrides: &[ConfigOverride]) -> Result<Self> {
+        let cfg: Self = read_config(path, overrides)?;
         cfg.validate().map_err(|e| NnError::ConfigFile { path: path.to_path_buf(), message: e.to_string() })?;
         Ok(cfg)
     }

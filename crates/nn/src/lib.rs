@@ -40,6 +40,7 @@ pub mod checkpoint;
 #[cfg(feature = "cli")]
 pub mod cli;
 pub mod config;
+pub mod config_override;
 pub mod data_loader;
 pub mod dense_heads;
 pub mod detect;

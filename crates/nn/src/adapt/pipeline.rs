@@ -26,6 +26,7 @@ use super::vpp::{median_sensor_height, VirtualPlatformPose, VppConfig, VppCounts
 use crate::augment::{AugmentConfig, RandomPlatformJitterConfig};
 use crate::checkpoint::{self, TrainState};
 use crate::config::DetectorConfig;
+use crate::config_override::{read_config, ConfigOverride};
 use crate::data_loader::Subset;
 use crate::detect::{self, FrameDetections};
 use crate::detector::Detector;
@@ -90,10 +91,13 @@ impl std::str::FromStr for Component {
 
 impl AdaptConfig {
     pub fn from_file(path: &Path) -> Result<Self> {
-        let s = std::fs::read_to_string(path).map_err(|e| NnError::io(path, e))?;
-        let bad = |message: String| NnError::ConfigFile { path: path.to_path_buf(), message };
-        let cfg: Self = toml::from_str(&s).map_err(|e| bad(e.to_string()))?;
-        cfg.validate().map_err(|e| bad(e.to_string()))?;
+        Self::from_file_with(path, &[])
+    }
+
+    /// The file with `--set` overrides applied before it is read.
+    pub fn from_file_with(path: &Path, overrides: &[ConfigOverride]) -> Result<Self> {
+        let cfg: Self = read_config(path, overrides)?;
+        cfg.validate().map_err(|e| NnError::ConfigFile { path: path.to_path_buf(), message: e.to_string() })?;
         Ok(cfg)
     }
 

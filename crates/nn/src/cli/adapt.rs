@@ -8,6 +8,7 @@ use indicatif::ProgressBar;
 use super::args::{open_subset, DeviceArgs};
 use super::progress_style;
 use crate::adapt::pipeline::{self, AdaptConfig, AdaptEvent, AdaptOptions, AdaptReport, Component, Stage};
+use crate::config_override::ConfigOverride;
 use crate::error::Result;
 use crate::train::Event;
 
@@ -57,6 +58,10 @@ pub struct AdaptArgs {
     /// Override the seed of both stages.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Change one config key (dotted TOML path, e.g. `detector.pfa.kl_weight=0` or
+    /// `pseudo_labels.positive_score=0.3`); repeatable. Applied before the flags above.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<ConfigOverride>,
     #[command(flatten)]
     pub device: DeviceArgs,
 }
@@ -72,7 +77,7 @@ fn parse_stage(s: &str) -> std::result::Result<Stage, String> {
 impl AdaptArgs {
     /// The config file with the command line's overrides and `--without` applied.
     pub fn config(&self) -> Result<AdaptConfig> {
-        let mut cfg = AdaptConfig::from_file(&self.config)?.without(&self.without);
+        let mut cfg = AdaptConfig::from_file_with(&self.config, &self.set)?.without(&self.without);
         if let Some(e) = self.pa_epochs {
             cfg.detector.train.epochs = e;
         }

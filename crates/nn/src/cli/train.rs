@@ -9,6 +9,7 @@ use indicatif::ProgressBar;
 use super::args::{open_subset, DataArgs, DeviceArgs};
 use super::{progress_style, refuse_existing};
 use crate::config::DetectorConfig;
+use crate::config_override::ConfigOverride;
 use crate::error::Result;
 use crate::train::{self, Event, TrainOptions};
 
@@ -46,6 +47,10 @@ pub struct TrainArgs {
     /// Override the config's seed.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Change one config key (dotted TOML path, e.g. `train.lr=0.002` or
+    /// `head.anchors.0.matched_threshold=0.55`); repeatable. Applied before the flags above.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<ConfigOverride>,
     /// Level every training and validation frame through Virtual Platform Pose to a virtual
     /// sensor this many metres above the ground (e.g. a detector trained on drone labels in the
     /// frame Pi3DET-Net adapts in; `pi3det detect --vpp-height` for its inference).
@@ -59,7 +64,7 @@ impl TrainArgs {
     /// The config file with the command line's overrides (epochs, batch size, seed, frame
     /// limits) written into it, so the checkpoint records what was run.
     pub fn config(&self) -> Result<DetectorConfig> {
-        let mut cfg = DetectorConfig::from_file(&self.config)?;
+        let mut cfg = DetectorConfig::from_file_with(&self.config, &self.set)?;
         if let Some(e) = self.epochs {
             cfg.train.epochs = e;
         }
