@@ -25,8 +25,9 @@
 //!   RoIs are sampled as background) nor the same foreground share in both domains.
 //!
 //! Measured on three Pre-Adaptation models (README, "PFA's KL on three Pre-Adaptation models"):
-//! neither estimator, nor the KL kept out of the encoder (`kl_into_encoder = false`), adds Car AP
-//! against no KL on the simulated drone and quadruped.
+//! at 2 KA epochs neither estimator, nor the KL kept out of the encoder (`kl_into_encoder =
+//! false`), adds Car AP against no KL on the simulated drone and quadruped; at 6 KA epochs the
+//! moment-matched KL adds +1.2 Car BEV on the drone and −0.5 on the quadruped ("KA epochs").
 
 use serde::{Deserialize, Serialize};
 use tch::nn::{self, Module};
