@@ -47,16 +47,13 @@ impl ConfigOverride {
     /// Sets the value in `table`, creating missing tables on the way (an optional section the
     /// file leaves out); refuses to descend into a value that is neither a table nor an array.
     pub fn apply(&self, table: &mut toml::Table) -> std::result::Result<(), String> {
-        let mut root = toml::Value::Table(std::mem::take(table));
-        let result = set(&mut root, &self.path, 0, &self.value).map_err(|why| format!("--set {}: {why}", self.key()));
-        if let toml::Value::Table(t) = root {
-            *table = t;
-        }
-        result
+        let (first, _) = self.path.split_first().expect("a parsed key has a part");
+        let child = table.entry(first.clone()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        set(child, &self.path, 1, &self.value).map_err(|why| format!("--set {}: {why}", self.key()))
     }
 }
 
-/// Sets `path[done..]` below `node` to `value`.
+/// Sets `path[done..]` below `node` (the value at `path[..done]`) to `value`.
 fn set(node: &mut toml::Value, path: &[String], done: usize, value: &toml::Value) -> std::result::Result<(), String> {
     let Some(part) = path.get(done) else {
         *node = value.clone();
@@ -70,7 +67,7 @@ fn set(node: &mut toml::Value, path: &[String], done: usize, value: &toml::Value
             let i: usize = part.parse().map_err(|_| format!("{at} is an array: index it with a number ({at}.0)"))?;
             items.get_mut(i).ok_or_else(|| format!("{at} has {n} entries, none at index {i}"))?
         }
-        other => return Err(format!("{at} is a {}, not a table", other.type_str())),
+        other => return Err(format!("{at} is not a table but a value of type {}", other.type_str())),
     };
     set(child, path, done + 1, value)
 }
@@ -135,7 +132,7 @@ mod tests {
             toml::from_str("[x]\ny = 5\n[new.deep]\nk = \"v\"\n[[z]]\nw = 1\n[[z]]\nw = 7\n").unwrap();
         assert_eq!(t, want);
         let err = |s: &str| set(s).apply(&mut t.clone()).unwrap_err();
-        assert!(err("x.y.q=1").contains("x.y is a integer, not a table"), "{}", err("x.y.q=1"));
+        assert!(err("x.y.q=1").contains("x.y is not a table but a value of type integer"), "{}", err("x.y.q=1"));
         assert!(err("z.w=1").contains("index it with a number"), "{}", err("z.w=1"));
         assert!(err("z.2.w=1").contains("z has 2 entries"), "{}", err("z.2.w=1"));
     }
@@ -180,7 +177,9 @@ mod tests {
         assert!(e.contains("net.toml") && e.contains("kl_wieght") && e.contains("--set"), "{e}");
         let e = AdaptConfig::from_file_with(&path, &[set("ka.lr=fast")]).unwrap_err().to_string();
         assert!(e.contains("net.toml") && e.contains("ka.lr"), "{e}");
-        // Parses, but validation refuses it.
+        // Parses, but validation refuses it (TOML reads `nan` as a float).
+        let e = AdaptConfig::from_file_with(&path, &[set("detector.pfa.kl_weight=nan")]).unwrap_err().to_string();
+        assert!(e.contains("net.toml") && e.contains("pfa"), "{e}");
         let e = AdaptConfig::from_file_with(&path, &[set("pseudo_labels.positive_score=1.5")]).unwrap_err().to_string();
         assert!(e.contains("net.toml") && e.contains("positive_score"), "{e}");
         assert_eq!(std::fs::read_to_string(&path).unwrap(), before, "the file is never written");
