@@ -1,5 +1,6 @@
-//! Ouster lidar packets of a valid OS1-64 1024x10 sensor: arbitrary bytes cut into whole packets,
-//! decoded and turned into points.
+//! Ouster lidar packets of a valid OS1-64 1024x10 sensor: the first byte picks the stored row
+//! size (the packet, the packet and ouster-ros' pad byte, or one byte more, which must be
+//! refused), the rest is cut into whole rows, decoded and turned into points.
 #![no_main]
 use pi3det_sequence::ouster::metadata::SensorMetadata;
 use pi3det_sequence::ouster::packet::{PacketFormat, Sweep};
@@ -22,10 +23,16 @@ fn sensor() -> &'static Sensor {
 }
 
 libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    let Some((&pick, rows)) = data.split_first() else { return };
     let s = sensor();
-    let n = data.len() / s.format.packet_bytes() * s.format.packet_bytes();
-    let mut sweep = Sweep::new(0, 0);
-    s.format.decode(&data[..n], &mut sweep);
-    let mut points = Vec::new();
-    s.lut.points(&sweep, &mut points);
+    let row_bytes = s.format.packet_bytes() + usize::from(pick % 3);
+    match s.format.row_padding(row_bytes) {
+        Ok(_) => {
+            let mut sweep = Sweep::new(0, 0);
+            s.format.decode_rows(rows, row_bytes, &mut sweep);
+            let mut points = Vec::new();
+            s.lut.points(&sweep, &mut points);
+        }
+        Err(message) => assert!(pick % 3 == 2 && message.contains("pad byte"), "{message}"),
+    }
 });

@@ -45,3 +45,54 @@ fn info_convert_and_read_back() {
     let missing = pi3det(&["info", dir.path().join("nothing").to_str().unwrap()]);
     assert!(!missing.status.success());
 }
+
+/// The release's padded rows (the default of the synthetic writer) and exact-size rows of the
+/// same packets convert to byte-identical layouts.
+#[test]
+fn padded_and_unpadded_sequences_convert_alike() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut converted = Vec::new();
+    for (name, pad) in [("padded", 1), ("exact", 0)] {
+        let processed = dir.path().join(name).join("processed");
+        let spec = SynthSpec { columns: 512, row_pad_bytes: pad, ..SynthSpec::os1_64("car_urban_day_x", 2) };
+        write_sequence(&processed.join("Car/urban_day"), &spec).unwrap();
+        let info = ok(pi3det(&["info", processed.to_str().unwrap()]), "info");
+        assert!(info.contains("| platform vehicle | 2 |"), "{info}");
+        let out = dir.path().join(name).join("layout");
+        ok(
+            pi3det(&["convert", processed.to_str().unwrap(), "--to", "pi3det-layout", "--out", out.to_str().unwrap()]),
+            "convert",
+        );
+        converted.push(out);
+    }
+    let files = |root: &std::path::Path| {
+        let mut v: Vec<_> = walk(root).into_iter().map(|p| p.strip_prefix(root).unwrap().to_path_buf()).collect();
+        v.sort();
+        v
+    };
+    let (a, b) = (files(&converted[0]), files(&converted[1]));
+    assert_eq!(a, b);
+    assert!(a.iter().any(|p| p.extension().is_some_and(|e| e == "bin")), "{a:?}");
+    for p in &a {
+        if p.extension().is_some_and(|e| e == "bin") {
+            assert_eq!(
+                std::fs::read(converted[0].join(p)).unwrap(),
+                std::fs::read(converted[1].join(p)).unwrap(),
+                "{p:?}"
+            );
+        }
+    }
+}
+
+fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            out.extend(walk(&p));
+        } else {
+            out.push(p);
+        }
+    }
+    out
+}

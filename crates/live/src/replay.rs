@@ -1,6 +1,8 @@
 //! A loopback replayer of synthetic Ouster packet streams with the faults of a real network:
 //! lost, reordered, duplicated and truncated packets, garbage datagrams, a frame-id wrap and a
-//! sensor restart. Used by the live tests and `pi3det bench live`.
+//! sensor restart. Used by the live tests and `pi3det bench live`. It also sends recorded
+//! sweeps of the sequence release ([`sequence_datagrams`]): their rows carry ouster-ros' pad byte
+//! after every packet, which a sensor never sends, so the datagrams leave it out.
 
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
@@ -8,6 +10,7 @@ use std::time::{Duration, Instant};
 use pi3det_data::PointCloud;
 use pi3det_sequence::ouster::{PacketFormat, UdpProfile, XyzLut};
 use pi3det_sequence::synth::{sweep_packets, sweep_packets_with, SynthSpec};
+use pi3det_sequence::{Sequence, SequenceError};
 
 /// Probabilities per packet.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -104,6 +107,12 @@ pub fn datagrams(spec: &SynthSpec, plan: &ReplayPlan) -> Vec<Vec<Vec<u8>>> {
         last.push(c);
     }
     out
+}
+
+/// The datagrams of recorded sweeps `frames` of a sequence, as the sensor sent them (one packet
+/// each, the stored pad bytes removed), in the shape [`send`] takes.
+pub fn sequence_datagrams(seq: &Sequence, frames: std::ops::Range<usize>) -> Result<Vec<Vec<Vec<u8>>>, SequenceError> {
+    frames.map(|k| seq.read_packets(k)).collect()
 }
 
 /// Sends sweeps to `to` at `rate_hz`, each sweep's datagrams spread over its period as a sensor

@@ -47,6 +47,8 @@ pub struct Sequence {
     /// concurrent load borrows its own (opened on first need, then reused).
     spare_handles: Mutex<Vec<H5Dataset>>,
     packets_per_sweep: usize,
+    /// Pad bytes after each packet in a row (0, or the ouster-ros pad).
+    row_pad_bytes: usize,
     lut: OnceLock<XyzLut>,
     ts_start_us: Option<Vec<i64>>,
     poses: Option<Vec<Pose>>,
@@ -130,7 +132,7 @@ impl Sequence {
         let metadata = SensorMetadata::parse(&data_path, &file.dataset("/ouster/metadata")?.read_text()?)?;
         let format = PacketFormat::new(&metadata);
         let data = file.dataset("/ouster/data")?;
-        let (mut frames, packets_per_sweep, packet_bytes) = match *data.shape() {
+        let (mut frames, packets_per_sweep, stored_packet_bytes) = match *data.shape() {
             [n, p, b] => (n as usize, p as usize, b as usize),
             ref s => {
                 return Err(SequenceError::invalid(
@@ -139,18 +141,9 @@ impl Sequence {
                 ))
             }
         };
-        if packet_bytes != format.packet_bytes() {
-            return Err(SequenceError::invalid(
-                &data_path,
-                format!(
-                    "/ouster/data packets are {packet_bytes} bytes, but the metadata's {:?} format ({} pixels × {} columns per packet) makes {}-byte packets",
-                    format.profile,
-                    format.pixels_per_column,
-                    format.columns_per_packet,
-                    format.packet_bytes()
-                ),
-            ));
-        }
+        let row_pad_bytes = format.row_padding(stored_packet_bytes).map_err(|m| {
+            SequenceError::invalid(&data_path, format!("/ouster/data of shape {:?}: {m}", data.shape()))
+        })?;
         data.row_bytes()?;
         data.check_chunks()?;
         let short = |what: &str, path: &Path, n: usize, frames: usize| {
@@ -215,6 +208,7 @@ impl Sequence {
             format,
             spare_handles: Mutex::new(vec![data]),
             packets_per_sweep,
+            row_pad_bytes,
             lut: OnceLock::new(),
             ts_start_us,
             poses,
@@ -247,7 +241,26 @@ impl Sequence {
         info
     }
 
-    /// The raw packets of sweep `k` (one HDF5 row).
+    /// Pad bytes stored after each packet: 0, or [`crate::ouster::ROS_PACKET_PAD_BYTES`] in
+    /// recordings made through ouster-ros 0.x (the Pi3DET release).
+    pub fn row_pad_bytes(&self) -> usize {
+        self.row_pad_bytes
+    }
+
+    /// Bytes per stored packet: the packet and its pad.
+    fn stored_packet_bytes(&self) -> usize {
+        self.format.packet_bytes() + self.row_pad_bytes
+    }
+
+    /// The packets of sweep `k` as the sensor sent them (pad bytes removed), one per datagram:
+    /// what a replayer sends.
+    pub fn read_packets(&self, k: usize) -> Result<Vec<Vec<u8>>> {
+        let row = self.read_row(k)?;
+        let n = self.format.packet_bytes();
+        Ok(row.chunks_exact(self.stored_packet_bytes()).map(|p| p[..n].to_vec()).collect())
+    }
+
+    /// The stored bytes of sweep `k` (one HDF5 row: its packets, each followed by its pad).
     pub fn read_row(&self, k: usize) -> Result<Vec<u8>> {
         let spare = self.spare_handles.lock().ok().and_then(|mut v| v.pop());
         let handle = match spare {
@@ -264,8 +277,8 @@ impl Sequence {
     /// Decodes sweep `k` into `sweep` (reused between calls to save allocations).
     pub fn read_sweep(&self, k: usize, sweep: &mut Sweep) -> Result<()> {
         let bytes = self.read_row(k)?;
-        debug_assert_eq!(bytes.len(), self.packets_per_sweep * self.format.packet_bytes());
-        self.format.decode(&bytes, sweep);
+        debug_assert_eq!(bytes.len(), self.packets_per_sweep * self.stored_packet_bytes());
+        self.format.decode_rows(&bytes, self.stored_packet_bytes(), sweep);
         if sweep.columns_out_of_range > 0 {
             tracing::warn!(
                 "{}: sweep {k}: {} columns with a measurement id outside the {}-column frame skipped",

@@ -9,7 +9,7 @@ use pi3det_data::pickle::{self, NdArray, Value};
 use serde_json::json;
 
 use crate::error::{Result, SequenceError};
-use crate::ouster::UdpProfile;
+use crate::ouster::{UdpProfile, ROS_PACKET_PAD_BYTES};
 
 #[derive(Debug, Clone)]
 pub struct SynthSpec {
@@ -23,6 +23,9 @@ pub struct SynthSpec {
     pub pose_frames: Option<usize>,
     /// Metadata JSON to store instead of [`metadata_json`] (for bad-input tests).
     pub metadata: Option<String>,
+    /// Bytes stored after each packet in `/ouster/data`: the release's layout by default
+    /// ([`ROS_PACKET_PAD_BYTES`], as ouster-ros 0.x wrote it); 0 for exact-size rows.
+    pub row_pad_bytes: usize,
 }
 
 impl SynthSpec {
@@ -37,6 +40,7 @@ impl SynthSpec {
             seed: 16,
             pose_frames: None,
             metadata: None,
+            row_pad_bytes: ROS_PACKET_PAD_BYTES,
         }
     }
 }
@@ -171,11 +175,15 @@ pub fn write_sequence(dir: &Path, spec: &SynthSpec) -> Result<PathBuf> {
     let mut state = Rng(spec.seed.max(1));
     let mut rng = move || state.below(u64::MAX);
     let t0_us = 1_650_000_000_000_000u64;
+    let packets = spec.columns.div_ceil(16) as u64;
     let mut data = Vec::new();
     for k in 0..spec.frames {
-        data.extend(sweep_packets(spec, k, (t0_us + k as u64 * 100_000) * 1000, &mut rng));
+        let sweep = sweep_packets(spec, k, (t0_us + k as u64 * 100_000) * 1000, &mut rng);
+        for packet in sweep.chunks_exact(sweep.len() / packets as usize) {
+            data.extend_from_slice(packet);
+            data.extend(std::iter::repeat_n(0u8, spec.row_pad_bytes));
+        }
     }
-    let packets = spec.columns.div_ceil(16) as u64;
     let packet_bytes = (data.len() / spec.frames.max(1)) as u64 / packets;
     let data_path = seq.join(format!("{}_data.h5", spec.name));
     let mut b = hdf5_pure::FileBuilder::new();

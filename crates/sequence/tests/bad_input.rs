@@ -67,7 +67,55 @@ fn packet_size_that_does_not_fit_the_metadata() {
     spec.metadata = Some(metadata_json(&SynthSpec { beams: 32, ..spec.clone() }));
     let seq = write_sequence(dir.path(), &spec).unwrap();
     let e = Sequence::open(&seq, SequenceOptions::default()).err().unwrap().to_string();
-    assert!(e.contains("wrong_size_data.h5") && e.contains("packets are 12608 bytes") && e.contains("6464"), "{e}");
+    assert!(e.contains("wrong_size_data.h5") && e.contains("packets are 12609 bytes") && e.contains("6464"), "{e}");
+}
+
+/// Rows may hold the packet alone or followed by ouster-ros' one pad byte; one byte short, or
+/// two long, is refused naming the file, the row layout and both sizes.
+#[test]
+fn rows_one_short_or_two_long() {
+    for (pad_delta, got) in [(-1i64, 12607), (2, 12610)] {
+        let dir = tempfile::tempdir().unwrap();
+        let spec = SynthSpec { row_pad_bytes: 0, ..SynthSpec::os1_64("odd_rows", 2) };
+        let seq = write_sequence(dir.path(), &spec).unwrap();
+        // Rewrite the data set with rows cut or extended.
+        let data = seq.join("odd_rows_data.h5");
+        let ds = Sequence::open(&seq, SequenceOptions::default()).unwrap();
+        let mut bytes = Vec::new();
+        for k in 0..ds.len() {
+            for p in ds.read_packets(k).unwrap() {
+                let mut p = p.clone();
+                p.resize((p.len() as i64 + pad_delta) as usize, 0);
+                bytes.extend(p);
+            }
+        }
+        drop(ds);
+        rewrite_data(&data, &spec, &bytes, got);
+        let e = Sequence::open(&seq, SequenceOptions::default()).err().unwrap().to_string();
+        assert!(
+            e.contains("odd_rows_data.h5")
+                && e.contains(&format!("/ouster/data of shape [2, 64, {got}]"))
+                && e.contains(&format!("packets are {got} bytes"))
+                && e.contains("makes 12608-byte packets")
+                && e.contains("(12609 bytes)"),
+            "{e}"
+        );
+    }
+}
+
+/// Writes `/ouster/data` (and the metadata) of `spec` again with rows of `row_bytes`.
+fn rewrite_data(path: &Path, spec: &SynthSpec, bytes: &[u8], row_bytes: u64) {
+    let packets = spec.columns.div_ceil(16) as u64;
+    let mut b = hdf5_pure::FileBuilder::new();
+    let mut g = b.create_group("ouster");
+    g.create_dataset("data")
+        .with_u8_data(bytes)
+        .with_shape(&[spec.frames as u64, packets, row_bytes])
+        .with_chunks(&[1, packets, row_bytes])
+        .with_lzf();
+    g.create_dataset("metadata").with_strings(&[&metadata_json(spec)]).unwrap();
+    b.add_group(g.finish());
+    b.write(path).unwrap();
 }
 
 #[test]
@@ -129,13 +177,13 @@ fn malformed_pseudo_label_rows() {
 fn h5py_written_bad_files() {
     let Some(py) = common::python() else { return };
     let cases = [
-        ("packet-size", "packets are 12604 bytes"),
+        ("packet-size", "packets are 12605 bytes"),
         ("no-intrinsics", "missing beam intrinsics"),
         ("short-pose", "has 2 frames but the data has 3"),
         ("bad-box", "shape [4, 8]"),
         ("huge", "packets are 2147483648 bytes"),
         ("huge-rows", "exceed the 256 MiB read limit"),
-        ("huge-chunks", "chunks of shape [700, 32, 12608] exceed the 256 MiB read limit"),
+        ("huge-chunks", "chunks of shape [700, 32, 12609] exceed the 256 MiB read limit"),
     ];
     for (kind, want) in cases {
         let dir = tempfile::tempdir().unwrap();

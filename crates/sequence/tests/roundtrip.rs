@@ -91,3 +91,35 @@ fn drone_and_quadruped_boxes_come_back_from_the_levelled_frame() {
     // Without a pose the levelled boxes cannot be placed: an error, not a guess.
     assert!(objects(&b, Platform::Drone, "falcon_x", None, LabelFrame::Release).is_err());
 }
+
+/// The release's rows (each packet followed by ouster-ros' pad byte) and exact-size rows of the
+/// same packets decode to the same points, frames and packets, in both packet profiles.
+#[test]
+fn padded_and_unpadded_rows_give_the_same_frames() {
+    use pi3det_sequence::ouster::ROS_PACKET_PAD_BYTES;
+    use pi3det_sequence::Sequence;
+    let dir = tempfile::tempdir().unwrap();
+    for profile in [UdpProfile::Legacy, UdpProfile::Rng19Rfl8Sig16Nir16] {
+        let base = SynthSpec { columns: 512, profile, ..SynthSpec::os1_64("pad", 2) };
+        assert_eq!(base.row_pad_bytes, ROS_PACKET_PAD_BYTES, "the release layout is the default");
+        let padded = write_sequence(&dir.path().join(format!("{profile:?}/padded")), &base).unwrap();
+        let exact = SynthSpec { row_pad_bytes: 0, ..base.clone() };
+        let exact = write_sequence(&dir.path().join(format!("{profile:?}/exact")), &exact).unwrap();
+        let (a, b) = (
+            Sequence::open(&padded, SequenceOptions::default()).unwrap(),
+            Sequence::open(&exact, SequenceOptions::default()).unwrap(),
+        );
+        assert_eq!((a.row_pad_bytes(), b.row_pad_bytes()), (1, 0));
+        let packet = a.format.packet_bytes();
+        assert_eq!(a.read_row(0).unwrap().len(), 32 * (packet + 1));
+        assert_eq!(b.read_row(0).unwrap().len(), 32 * packet);
+        for k in 0..a.len() {
+            let (pa, pb) = (a.read_packets(k).unwrap(), b.read_packets(k).unwrap());
+            assert_eq!(pa, pb, "{profile:?} sweep {k}: packets");
+            assert!(pa.iter().all(|p| p.len() == packet));
+            let (fa, fb) = (a.load(k).unwrap(), b.load(k).unwrap());
+            assert!(fa.points.len() > 10_000);
+            assert_eq!(fa.points, fb.points, "{profile:?} sweep {k}: points");
+        }
+    }
+}

@@ -1,7 +1,9 @@
 //! Live Ouster lidar packets over UDP, assembled into sweeps.
 //!
-//! Each datagram must be one lidar packet of the layout the metadata gives (other sizes are
-//! counted as `garbage`). A packet belongs to the sweep of its frame id and fills the slot of
+//! Each datagram must be one lidar packet of the layout the metadata gives, exactly as the
+//! sensor sends it (other sizes are counted as `garbage`; the pad byte ouster-ros 0.x stored
+//! after each packet in recordings is never on the wire — `replay::sequence_datagrams` strips
+//! it when a recording is replayed). A packet belongs to the sweep of its frame id and fills the slot of
 //! its first measurement id. The assembly rule:
 //! - a sweep is emitted as soon as all its packets have arrived (`complete`);
 //! - a packet of another frame id ends the pending sweep: it is emitted if at least

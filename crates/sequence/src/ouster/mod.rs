@@ -5,5 +5,5 @@ pub mod packet;
 pub mod xyz;
 
 pub use metadata::{SensorMetadata, UdpProfile};
-pub use packet::{PacketFormat, Sweep};
+pub use packet::{PacketFormat, Sweep, ROS_PACKET_PAD_BYTES};
 pub use xyz::XyzLut;

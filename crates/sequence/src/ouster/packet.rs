@@ -79,6 +79,12 @@ fn u64_at(b: &[u8], o: usize) -> u64 {
     u64::from_le_bytes(std::array::from_fn(|i| b[o + i]))
 }
 
+/// Bytes ouster-ros 0.x appends to every lidar packet in its message buffers, and so to every
+/// row of `/ouster/data` in the recordings made through it (M3ED, the Pi3DET sequence release:
+/// `uint8 (N, packets_per_sweep, 12609)` for OS1-64 LEGACY packets of 12,608 bytes). The Ouster
+/// SDK reads `row[:packet_bytes]` and so do we; a sensor's UDP datagrams carry no pad.
+pub const ROS_PACKET_PAD_BYTES: usize = 1;
+
 impl PacketFormat {
     pub fn new(md: &SensorMetadata) -> Self {
         let (packet_header_bytes, column_header_bytes, column_footer_bytes, packet_footer_bytes) = match md.profile {
@@ -120,9 +126,37 @@ impl PacketFormat {
         Some((frame_id, u16_at(packet, col + 8), u64_at(packet, col)))
     }
 
+    /// The pad bytes after each packet in rows of `row_bytes` (a stored sweep's rows, or an
+    /// Ouster message buffer): 0 when the row is exactly one packet, [`ROS_PACKET_PAD_BYTES`]
+    /// when it carries the pad byte ouster-ros 0.x appends. Any other length is refused with a
+    /// message giving both sizes: a row shorter than the packet cannot hold it, and a longer one
+    /// means the metadata describes another packet layout (profile, beams, columns per packet)
+    /// than the recording's, which a looser rule would decode into plausible-looking garbage.
+    pub fn row_padding(&self, row_bytes: usize) -> std::result::Result<usize, String> {
+        let packet = self.packet_bytes();
+        match row_bytes.checked_sub(packet) {
+            Some(pad) if pad == 0 || pad == ROS_PACKET_PAD_BYTES => Ok(pad),
+            _ => Err(format!(
+                "packets are {row_bytes} bytes, but the metadata's {:?} format ({} pixels × {} columns per packet) makes {packet}-byte packets; \
+                 a row may hold the packet alone ({packet} bytes) or followed by the {ROS_PACKET_PAD_BYTES} pad byte ouster-ros 0.x writes ({} bytes)",
+                self.profile,
+                self.pixels_per_column,
+                self.columns_per_packet,
+                packet + ROS_PACKET_PAD_BYTES
+            )),
+        }
+    }
+
     /// Decodes `packets` (concatenated, each [`packet_bytes`](Self::packet_bytes) long) into
     /// `sweep`, which is reset first. The caller checks the packet size against the file once.
     pub fn decode(&self, packets: &[u8], sweep: &mut Sweep) {
+        self.decode_rows(packets, self.packet_bytes(), sweep);
+    }
+
+    /// Decodes rows of `row_bytes` each, every one a packet from its first byte followed by pad
+    /// bytes that are ignored (see [`row_padding`](Self::row_padding)), into `sweep`, which is
+    /// reset first. A trailing part shorter than a row is ignored.
+    pub fn decode_rows(&self, rows: &[u8], row_bytes: usize, sweep: &mut Sweep) {
         let (w, h) = (self.columns_per_frame, self.pixels_per_column);
         if sweep.w != w || sweep.h != h {
             *sweep = Sweep::new(w, h);
@@ -134,8 +168,13 @@ impl PacketFormat {
             UdpProfile::Rng19Rfl8Sig16Nir16 => (0x0007_ffff, false),
         };
         let col_bytes = self.column_bytes();
-        for packet in packets.chunks_exact(self.packet_bytes()) {
-            let columns = &packet[self.packet_header_bytes..packet.len() - self.packet_footer_bytes];
+        let packet_bytes = self.packet_bytes();
+        if row_bytes < packet_bytes {
+            return;
+        }
+        for row in rows.chunks_exact(row_bytes) {
+            let packet = &row[..packet_bytes];
+            let columns = &packet[self.packet_header_bytes..packet_bytes - self.packet_footer_bytes];
             for col in columns.chunks_exact(col_bytes) {
                 let ts = u64_at(col, 0);
                 let m = u16_at(col, 8) as usize;
