@@ -141,6 +141,12 @@ impl Detector {
         &self.prep.cfg
     }
 
+    /// Infers in `precision` from now on (the weights are f32 either way).
+    pub fn set_precision(&mut self, precision: crate::precision::Precision) -> Result<()> {
+        self.prep = Arc::new(self.prep.with_precision(precision)?);
+        Ok(())
+    }
+
     pub fn device(&self) -> Device {
         self.vs.device()
     }
@@ -280,13 +286,43 @@ impl Detector {
     /// the second stage's, and on source batches GTD's `rot` (frames with platform jitter in
     /// `gt`) and PFA's `pfa_roi`.
     pub fn loss(&self, out: &Forward, targets: &BatchTargets, gt: &[FrameGt], domain: Domain) -> Result<LossTerms> {
+        self.loss_impl(out, targets, gt, domain, None)
+    }
+
+    /// The loss of a Knowledge-Adaptation target batch whose background follows `neg`
+    /// ([`crate::adapt::coverage`]): the target's terms of [`loss`](Self::loss), with the
+    /// dense head's and the second stage's classification under the rules.
+    pub fn loss_target(
+        &self,
+        out: &Forward,
+        targets: &BatchTargets,
+        gt: &[FrameGt],
+        neg: &crate::adapt::coverage::TargetNegatives,
+    ) -> Result<LossTerms> {
+        self.loss_impl(out, targets, gt, Domain::Target, Some(neg))
+    }
+
+    fn loss_impl(
+        &self,
+        out: &Forward,
+        targets: &BatchTargets,
+        gt: &[FrameGt],
+        domain: Domain,
+        neg: Option<&crate::adapt::coverage::TargetNegatives>,
+    ) -> Result<LossTerms> {
         let mut losses = LossTerms::new(&self.cfg().loss_weights);
-        self.dense_head.loss(&out.dense, targets, &mut losses)?;
+        match neg {
+            Some(n) => self.dense_head.loss_target(&out.dense, targets, n, &mut losses)?,
+            None => self.dense_head.loss(&out.dense, targets, &mut losses)?,
+        }
         if let (Some(stage), Some(roi)) = (&self.roi_head, &out.roi) {
             let t = roi.targets.as_ref().ok_or_else(|| {
                 NnError::Input("the second stage's loss needs a forward_train pass (sampled RoIs)".into())
             })?;
-            stage.loss(&roi.out, t, &mut losses)?;
+            match neg {
+                Some(n) => stage.loss_target(&roi.out, t, n, &mut losses)?,
+                None => stage.loss(&roi.out, t, &mut losses)?,
+            }
         }
         if domain == Domain::Target {
             return Ok(losses);

@@ -87,6 +87,16 @@ impl Preprocessor {
         self
     }
 
+    /// The same preprocessing (frame transform, ignored scores) for the config with inference
+    /// precision `precision`.
+    pub fn with_precision(&self, precision: crate::precision::Precision) -> Result<Self> {
+        let mut cfg = self.cfg.clone();
+        cfg.precision = precision;
+        let mut p = Self::new(&cfg)?.with_frame_transform(self.transform.clone());
+        p.ignore_score_below = self.ignore_score_below;
+        Ok(p)
+    }
+
     /// Self-training: objects with a score (pseudo-labels) below `threshold` become ignored boxes
     /// of their class ([`Sample::ignored`]) instead of training targets; objects without a score
     /// (ground truth) or scoring at least `threshold` stay boxes. Pseudo-labels below the low

@@ -31,8 +31,8 @@ fn config() -> AdaptConfig {
     let mut cfg = AdaptConfig { name: "tiny".into(), detector, ..base };
     cfg.ka.epochs = 2;
     // An untrained PA model scores low: let its boxes through as pseudo-labels.
-    cfg.pseudo_labels.positive_score = 0.1;
-    cfg.pseudo_labels.ignore_score = 0.05;
+    cfg.pseudo_labels.positive_score = 0.05;
+    cfg.pseudo_labels.ignore_score = 0.02;
     cfg
 }
 
@@ -110,7 +110,10 @@ fn stages_run_and_resume_across_pa_ka_reproduces_an_uninterrupted_run() {
     }
     // Every KA step trained on a source batch and a target batch.
     assert_eq!(steps.len(), cfg.ka.epochs * d.target.len(), "{:?}", report);
-    assert!(steps.iter().all(|s| s.source > 0.0 && s.target > 0.0 && s.loss >= s.source + s.target - 1e-6));
+    // (A target frame whose pseudo-labels are all in the ignored band adds no background loss:
+    // KA's coverage rule, crates/nn/src/adapt/coverage.rs.)
+    assert!(steps.iter().all(|s| s.source > 0.0 && s.target >= 0.0 && s.loss >= s.source + s.target - 1e-6));
+    assert!(steps.iter().any(|s| s.target > 0.0), "the target batches train");
     assert!(report.vpp.unwrap().frames == d.target.len(), "{:?}", report.vpp);
     assert!(a.join("pseudo_labels.jsonl").is_file());
     let ck = checkpoint::load(&a.join("pa/final.safetensors")).unwrap();
@@ -199,4 +202,77 @@ fn bad_input_is_refused_before_anything_is_written() {
     let err = run(o);
     assert!(err.contains("another architecture") && err.contains("neck"), "{err}");
     assert!(!d.root.join("with_pa").exists(), "nothing written");
+}
+
+/// Issue 47: a target where the PA model is sure of nothing. Its pseudo-labels hold no
+/// positive, only boxes in the ignored band, so before the background rules every target anchor
+/// and RoI was trained as background (the target loss KA then drives down is "nothing is here").
+/// With the rules (the defaults) the target batches push nothing down, the adapted model still
+/// finds what the PA model found through VPP (the guard's retention, which ships it), and the
+/// report warns that the positives are too few and names both checkpoints.
+#[test]
+fn scarce_pseudo_labels_leave_what_the_pa_model_found() {
+    let _turn = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    tch::set_num_threads(1);
+    let d = data();
+    let mut cfg = config();
+    // A PA model that knows its few frames (no augmentation, many passes); the target is those
+    // frames, so what it finds there is worth keeping.
+    cfg.detector.train.epochs = 40;
+    cfg.detector.train.lr = 0.01;
+    cfg.detector.train.augment.clear();
+    // A tiny model's scores are all low: the band and the reported boxes start near zero, and
+    // nothing reaches the positive score (nor may a lowered threshold: this is the case where
+    // the target gives nothing to adapt on).
+    cfg.detector.post.score_threshold = 0.002;
+    cfg.pseudo_labels.positive_score = 0.95;
+    cfg.pseudo_labels.ignore_score = 0.002;
+    cfg.adaptive_thresholds.enabled = false;
+    cfg.ka.epochs = 8;
+    cfg.ka.lr = 0.003;
+    cfg.guard.max_frames = 0;
+    let pa_dir = d.root.join("pa_only");
+    let mut o = options(&cfg, &d, &pa_dir);
+    o.stop_after = Some(Stage::Pa);
+    pipeline::run(o, &mut |_| {}).unwrap();
+    let pa = pa_dir.join("pa/final.safetensors");
+    let adapt = |cfg: &AdaptConfig, name: &str| {
+        let mut o = options(cfg, &d, &d.root.join(name));
+        o.target = d.source.clone();
+        o.stop_after = None;
+        o.pa_ckpt = Some(pa.clone());
+        pipeline::run(o, &mut |_| {}).unwrap()
+    };
+
+    let on = adapt(&cfg, "rules_on");
+    let round = &on.label_rounds[0];
+    assert_eq!(round.positives.positives, 0, "{round:?}");
+    assert!(round.thresholds.classes[0].boxes > 0, "the PA model found boxes (all in the band)");
+    assert!(on.warnings.iter().any(|w| w.contains("positive pseudo-labels per target frame")), "{:?}", on.warnings);
+    // Every target frame is covered by ignored boxes only: no background loss at all.
+    assert_eq!(on.ka_epochs.len(), cfg.ka.epochs);
+    assert!(on.ka_epochs.iter().all(|e| e.mean_target == 0.0 && e.mean_background_weight == 0.0), "{:?}", on.ka_epochs);
+    let g = on.guard.as_ref().expect("the guard compared the models");
+    assert_eq!(g.frames, d.source.len());
+    assert!(g.pa_vpp.detections > 0 && g.adapted.detections > 0, "{g:?}");
+    assert!(g.retained >= cfg.guard.min_retention, "no collapse: {g:?}");
+    assert_eq!(g.ship, pi3det_nn::adapt::guard::Ship::Adapted, "{g:?}");
+    assert_eq!(g.pa_checkpoint, pa);
+    assert!(g.pa_checkpoint.is_file() && g.adapted_checkpoint.is_file(), "both checkpoints are kept");
+    let md = std::fs::read_to_string(d.root.join("rules_on/adapt.md")).unwrap();
+    assert!(md.contains("ship adapted") && md.contains("Warnings:"), "{md}");
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.root.join("rules_on/adapt.json")).unwrap()).unwrap();
+    assert_eq!(json["guard"]["ship"], "adapted");
+    assert_eq!(json["label_rounds"][0]["positives"]["positives"], 0);
+
+    // Without the rules the same labels make every target output background.
+    let mut off = cfg.clone();
+    off.target_negatives.enabled = false;
+    let off = adapt(&off, "rules_off");
+    assert!(
+        off.ka_epochs.iter().all(|e| e.mean_target > 0.0 && e.mean_background_weight == 1.0),
+        "{:?}",
+        off.ka_epochs
+    );
 }

@@ -80,6 +80,7 @@ fn anchor_loss_gradients_follow_the_assignment() {
         pos_codes: Tensor::from_slice(&t.pos_codes).view([p, 7]),
         pos_dir: Tensor::from_slice(&t.pos_dir),
         pos_weight: Tensor::full([p], 1.0 / p as f64, (Kind::Float, Device::Cpu)),
+        near_index: Tensor::from_slice(&t.near_positive),
     };
     let out = AnchorOutput { cls: cls.shallow_clone(), boxes: boxes.shallow_clone(), dir: dir.shallow_clone() };
     let (total, _) = head.loss(&out, &targets);

@@ -17,6 +17,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use tch::Device;
 
+use super::coverage::{TargetNegatives, TargetNegativesConfig};
 use crate::augment::Augment;
 use crate::config::TrainConfig;
 use crate::data_loader::{frame_seed, Batch, Loader, LoaderOptions, Subset};
@@ -76,6 +77,9 @@ pub struct KaStep {
     pub source: f64,
     pub target: f64,
     pub kl: f64,
+    /// The target batch's mean background weight under the coverage rule (1 without it;
+    /// [`crate::adapt::coverage`]).
+    pub target_background_weight: f64,
     pub grad_norm: f64,
     pub step_seconds: f64,
 }
@@ -87,6 +91,9 @@ pub struct KnowledgeAdaptation {
     train: TrainConfig,
     pub steps_per_epoch: usize,
     pub total_steps: usize,
+    /// The target batches' background rules and the band's floor they default to (none: every
+    /// unlabelled target output is background, as in self-training baselines).
+    negatives: Option<(TargetNegativesConfig, f64)>,
 }
 
 impl KnowledgeAdaptation {
@@ -100,7 +107,15 @@ impl KnowledgeAdaptation {
             train,
             steps_per_epoch,
             total_steps,
+            negatives: None,
         }
+    }
+
+    /// Target batches' background under `cfg` ([`crate::adapt::coverage`]; when enabled), with
+    /// `ignore_score` the pseudo-labels' band floor.
+    pub fn with_target_negatives(mut self, cfg: &TargetNegativesConfig, ignore_score: f64) -> Self {
+        self.negatives = cfg.enabled.then(|| (cfg.clone(), ignore_score));
+        self
     }
 
     fn loader(&self, d: &DomainData, epoch: u64) -> Loader {
@@ -174,7 +189,7 @@ impl KnowledgeAdaptation {
                     if let Some(nm) = norms.as_deref_mut() {
                         nm.enter(Domain::Source);
                     }
-                    let (l, z) = domain_pass(det, sb, Domain::Source, device, &mut rng)?;
+                    let (l, z) = domain_pass(det, sb, Domain::Source, None, device, &mut rng)?;
                     if split_backward {
                         l.backward();
                     }
@@ -185,7 +200,8 @@ impl KnowledgeAdaptation {
             if let Some(nm) = norms.as_deref_mut() {
                 nm.enter(Domain::Target);
             }
-            let (lt, zt) = domain_pass(det, &tb, Domain::Target, device, &mut rng)?;
+            let neg = self.negatives.as_ref().map(|(c, ignore)| c.for_batch(*ignore, &tb.gt));
+            let (lt, zt) = domain_pass(det, &tb, Domain::Target, neg.as_ref(), device, &mut rng)?;
             let kl = match (zs, zt) {
                 (Some(s), Some(t)) if !split_backward => det.kl_loss(&s, &t),
                 _ => None,
@@ -221,6 +237,7 @@ impl KnowledgeAdaptation {
                 source: ls.as_ref().map_or(0.0, |l| l.double_value(&[])),
                 target: lt.double_value(&[]),
                 kl: kl.map_or(0.0, |k| k.double_value(&[])),
+                target_background_weight: neg.as_ref().map_or(1.0, TargetNegatives::mean_weight),
                 grad_norm,
                 step_seconds: t0.elapsed().as_secs_f64(),
             });
@@ -229,18 +246,24 @@ impl KnowledgeAdaptation {
     }
 }
 
-/// Forward and loss of one domain's batch: the loss total and PFA's latents.
+/// Forward and loss of one domain's batch (a target batch's background under `neg` when given):
+/// the loss total and PFA's latents.
 fn domain_pass(
     det: &Detector,
     b: &Batch,
     domain: Domain,
+    neg: Option<&TargetNegatives>,
     device: Device,
     rng: &mut ChaCha8Rng,
 ) -> Result<(tch::Tensor, Option<crate::adapt::Latent>)> {
     let x = b.inputs.to_device(device);
     let targets = b.targets.as_ref().ok_or_else(|| NnError::Loader("batch without targets".into()))?;
     let out = det.forward_train(&x, &b.gt, rng)?;
-    let losses = det.loss(&out, &targets.to_device(device), &b.gt, domain)?;
+    let targets = targets.to_device(device);
+    let losses = match neg {
+        Some(n) => det.loss_target(&out, &targets, &b.gt, n)?,
+        None => det.loss(&out, &targets, &b.gt, domain)?,
+    };
     let z = det.latent(&out, domain).transpose()?;
     Ok((losses.total(), z))
 }

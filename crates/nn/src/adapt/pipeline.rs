@@ -20,8 +20,11 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 use tch::Device;
 
+use super::coverage::TargetNegativesConfig;
+use super::guard::{self, Comparison, GuardConfig, PositiveStats};
 use super::ka::{DomainData, KaConfig, KaStep, KnowledgeAdaptation};
 use super::pseudo_labels::{self, LabelQuality, PseudoLabelConfig, PseudoLabeled};
+use super::thresholds::{self, AdaptiveThresholdConfig, Thresholds};
 use super::vpp::{median_sensor_height, VirtualPlatformPose, VppConfig, VppCounts};
 use crate::augment::{AugmentConfig, RandomPlatformJitterConfig};
 use crate::checkpoint::{self, TrainState};
@@ -46,7 +49,13 @@ pub struct AdaptConfig {
     /// Virtual Platform Pose for target frames (absent: off).
     pub vpp: Option<VppConfig>,
     pub pseudo_labels: PseudoLabelConfig,
+    /// Per-class positive thresholds when `positive_score` gives too few positives.
+    pub adaptive_thresholds: AdaptiveThresholdConfig,
     pub ka: KaConfig,
+    /// KA's rules for the target's background (unsure outputs ignored, coverage weight).
+    pub target_negatives: TargetNegativesConfig,
+    /// Positives-per-frame warning and the adapted vs PA-through-VPP comparison.
+    pub guard: GuardConfig,
 }
 
 impl Default for AdaptConfig {
@@ -61,7 +70,10 @@ impl Default for AdaptConfig {
             detector,
             vpp: Some(VppConfig::default()),
             pseudo_labels: PseudoLabelConfig::default(),
+            adaptive_thresholds: AdaptiveThresholdConfig::default(),
             ka: KaConfig::default(),
+            target_negatives: TargetNegativesConfig::default(),
+            guard: GuardConfig::default(),
         }
     }
 }
@@ -117,6 +129,9 @@ impl AdaptConfig {
             v.validate()?;
         }
         self.pseudo_labels.validate()?;
+        self.adaptive_thresholds.validate()?;
+        self.target_negatives.validate()?;
+        self.guard.validate()?;
         self.ka.validate()
     }
 
@@ -213,6 +228,8 @@ pub struct KaEpochLoss {
     pub mean_source: f64,
     pub mean_target: f64,
     pub mean_kl: f64,
+    /// Mean over the target batches of their background weight (coverage rule; 1 without it).
+    pub mean_background_weight: f64,
     pub seconds: f64,
 }
 
@@ -221,6 +238,16 @@ pub struct KaEpochLoss {
 pub struct QualityRow {
     pub labels: String,
     pub rows: Vec<LabelQuality>,
+}
+
+/// One set of pseudo-labels KA trained on: made before KA (epoch 0) or refreshed before `epoch`.
+#[derive(Debug, Clone, Serialize)]
+pub struct LabelRound {
+    pub epoch: usize,
+    /// The positive threshold of each class ([`thresholds`]).
+    pub thresholds: Thresholds,
+    /// Positives (at those thresholds) per target frame.
+    pub positives: PositiveStats,
 }
 
 #[derive(Debug, Clone, Serialize, Default)]
@@ -240,7 +267,14 @@ pub struct AdaptReport {
     pub source_only_vpp: Option<ApSummary>,
     pub adapted: Option<ApSummary>,
     pub pseudo_labels: usize,
+    /// Each set of pseudo-labels: thresholds and positives per frame.
+    pub label_rounds: Vec<LabelRound>,
     pub pseudo_label_quality: Vec<QualityRow>,
+    /// What the run warns about (too few positives to adapt on, the guard's verdict).
+    pub warnings: Vec<String>,
+    /// The adapted model against the PA model through VPP on the target's training frames,
+    /// and which of the two to ship.
+    pub guard: Option<Comparison>,
     /// The KA epochs this run trained (a resumed run: the epochs after the resume).
     pub ka_epochs: Vec<KaEpochLoss>,
     pub pa_seconds: f64,
@@ -484,16 +518,34 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     let r = det_cfg.pillars.point_cloud_range;
     let bev = [r[0], r[1], r[3], r[4]];
     let pos = cfg.pseudo_labels.positive_score;
-    let mut labels = if let (Some(_), true) = (&resume_ka, labels_model.exists()) {
+    let from_labels_model = resume_ka.is_some() && labels_model.exists();
+    let raw = if from_labels_model {
         let (m, _) = checkpoint::load_detector_with_post(&labels_model, Some(&det_cfg.post), opts.device)?;
         make_labels(&m, on_event)?
     } else {
         checkpoint::save(&labels_model, &det, None, &TrainState { stage: Some("ka".into()), ..Default::default() })?;
         make_labels(&det, on_event)?
     };
+    // The PA model's boxes through VPP, which the guard compares the adapted model with (a
+    // resumed run's labels may come from a refreshed model: the guard then runs PA again).
+    let pa_detections = (!from_labels_model).then(|| raw.clone());
+    let (mut labels, round) = label_round(&raw, cfg, if from_labels_model { usize::MAX } else { 0 });
+    let lowered = round.thresholds.lowered;
+    record_round(round, cfg, &mut report, on_event);
     if has_gt {
         let q = pseudo_labels::quality(&labels, gt, det_cfg, pos, &[0.5, 0.7], bev);
-        let name = if vpp.is_some() { "PA model, through VPP" } else { "PA model" };
+        let name = match (vpp.is_some(), lowered) {
+            (true, false) => "PA model, through VPP",
+            (false, false) => "PA model",
+            (true, true) => "PA model, through VPP, adaptive thresholds",
+            (false, true) => "PA model, adaptive thresholds",
+        };
+        if lowered {
+            let q = pseudo_labels::quality(&raw, gt, det_cfg, pos, &[0.5, 0.7], bev);
+            let fixed =
+                if vpp.is_some() { "PA model, through VPP, positive_score" } else { "PA model, positive_score" };
+            report.pseudo_label_quality.push(QualityRow { labels: fixed.into(), rows: q });
+        }
         report.pseudo_label_quality.push(QualityRow { labels: name.into(), rows: q });
         if vpp.is_some() && opts.vpp_diagnostics {
             let (raw, _) = detect::detect_with(&det, plain_prep.clone(), &opts.target, 4, true, &mut |_, _| {})?;
@@ -503,7 +555,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
                 .insert(0, QualityRow { labels: "PA model, sensor frame (no VPP)".into(), rows: q });
         }
     }
-    detect::write_jsonl(&out.join("pseudo_labels.jsonl"), &labels)?;
+    detect::write_jsonl(&out.join("pseudo_labels.jsonl"), &raw)?;
 
     // Knowledge-Adaptation.
     on_event(AdaptEvent::Stage("knowledge-adaptation"));
@@ -518,7 +570,8 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         let subset = PseudoLabeled::new(&opts.target, labels)?.subset(&opts.target);
         Ok(DomainData { subset, prep: Arc::new(target_prep(true)?), augments: target_augments.clone() })
     };
-    let mut ka = KnowledgeAdaptation::new(&det, &cfg.ka, opts.target.len());
+    let mut ka = KnowledgeAdaptation::new(&det, &cfg.ka, opts.target.len())
+        .with_target_negatives(&cfg.target_negatives, cfg.pseudo_labels.ignore_score);
     let mut start = 0;
     if let Some(p) = &resume_ka {
         let ck = checkpoint::load(p)?;
@@ -541,17 +594,22 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
                 None,
                 &TrainState { stage: Some("ka".into()), ..Default::default() },
             )?;
-            labels = make_labels(&det, on_event)?;
+            let raw = make_labels(&det, on_event)?;
+            let (l, round) = label_round(&raw, cfg, epoch);
+            record_round(round, cfg, &mut report, on_event);
+            labels = l;
             target = target_data(&labels)?;
             on_event(AdaptEvent::Stage("knowledge-adaptation"));
         }
         let t = Instant::now();
         // Sums of the source, target and λ_KL·KL parts over the epoch's steps.
         let (mut source_sum, mut target_sum, mut kl_sum, mut steps) = (0.0, 0.0, 0.0, 0usize);
+        let mut weight_sum = 0.0;
         let mean_loss = ka.epoch(&det, epoch, Some(&source), &target, None, opts.device, &mut |s| {
             source_sum += s.source;
             target_sum += s.target;
             kl_sum += s.kl;
+            weight_sum += s.target_background_weight;
             steps += 1;
             on_event(AdaptEvent::KaStep(s))
         })?;
@@ -562,6 +620,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
             mean_source: source_sum / n,
             mean_target: target_sum / n,
             mean_kl: kl_sum / n,
+            mean_background_weight: weight_sum / n,
             seconds: t.elapsed().as_secs_f64(),
         };
         report.ka_epochs.push(summary);
@@ -587,11 +646,43 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         ck.load_into(&mut det, &final_path)?;
     }
     report.ka_seconds = t_ka.elapsed().as_secs_f64();
-    report.final_checkpoint = Some(final_path);
+    report.final_checkpoint = Some(final_path.clone());
     // Counted again after the evaluation, which levels the validation frames too.
     report.vpp = vpp.as_ref().map(|v| v.counts());
     if opts.stop_after == Some(Stage::Ka) {
         return Ok(report);
+    }
+    if cfg.guard.compare {
+        on_event(AdaptEvent::Stage("guard: adapted vs PA through VPP"));
+        let c = compare_with_pa(
+            &det,
+            &opts,
+            pa_detections.as_deref(),
+            &pa_path,
+            &final_path,
+            Arc::new(target_prep(false)?),
+        )?;
+        let line = format!(
+            "guard: ship {} — {} (on {} target frames: PA through VPP {:.2} confident boxes per frame, mean score {:.2}; adapted {:.2}, {:.2}; agreement F1 {:.2}); PA checkpoint {} (run it through VPP), adapted {}",
+            c.ship,
+            c.reason,
+            c.frames,
+            c.pa_vpp.per_frame,
+            c.pa_vpp.mean_score,
+            c.adapted.per_frame,
+            c.adapted.mean_score,
+            c.agreement_f1,
+            c.pa_checkpoint.display(),
+            c.adapted_checkpoint.display()
+        );
+        // Shown once, as an event (the command line prints them); the report keeps warnings.
+        if c.ship == guard::Ship::PaVpp {
+            report.warnings.push(line.clone());
+            on_event(AdaptEvent::Message(format!("warning: {line}")));
+        } else {
+            on_event(AdaptEvent::Message(line));
+        }
+        report.guard = Some(c);
     }
     if let Some(v) = val {
         on_event(AdaptEvent::Stage("evaluating the adapted model"));
@@ -603,6 +694,77 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     pi3det_data::io::write_atomic(&out.join("adapt.json"), &json, true)?;
     pi3det_data::io::write_atomic(&out.join("adapt.md"), markdown(&report, det_cfg).as_bytes(), true)?;
     Ok(report)
+}
+
+/// The labels KA trains on from the labeller's boxes `raw` (thresholds chosen for them), with
+/// the round's thresholds and positives; `epoch`: the KA epoch they are made before
+/// (`usize::MAX`: regenerated on resuming).
+fn label_round(raw: &[FrameDetections], cfg: &AdaptConfig, epoch: usize) -> (Vec<FrameDetections>, LabelRound) {
+    let pl = &cfg.pseudo_labels;
+    let th = thresholds::choose(raw, &cfg.detector, pl, &cfg.adaptive_thresholds);
+    let labels = thresholds::training_labels(raw, &th, &cfg.detector, pl.positive_score);
+    let positives = PositiveStats::of(&labels, pl.positive_score);
+    (labels, LabelRound { epoch, thresholds: th, positives })
+}
+
+/// Logs a label round (thresholds, positives per frame, the warning when they are too few) and
+/// records it in the report.
+fn record_round(
+    round: LabelRound,
+    cfg: &AdaptConfig,
+    report: &mut AdaptReport,
+    on_event: &mut dyn FnMut(AdaptEvent<'_>),
+) {
+    let p = &round.positives;
+    on_event(AdaptEvent::Message(format!(
+        "pseudo-labels: {} positives, {:.2} per target frame ({} of {} frames without any)",
+        p.positives, p.per_frame, p.frames_without, p.frames
+    )));
+    if round.thresholds.lowered {
+        let line = format!(
+            "pseudo-labels: {:.2} positives per frame at positive_score {}: thresholds lowered to {}",
+            round.thresholds.fixed_positives_per_frame,
+            cfg.pseudo_labels.positive_score,
+            round.thresholds.summary()
+        );
+        on_event(AdaptEvent::Message(line));
+    }
+    if let Some(w) = p.warning(cfg.guard.warn_positives_per_frame, cfg.target_negatives.enabled) {
+        on_event(AdaptEvent::Message(format!("warning: {w}")));
+        report.warnings.push(w);
+    }
+    report.label_rounds.push(round);
+}
+
+/// The guard's comparison on (up to `max_frames` of) the target's training frames: `det` (the
+/// adapted model) and the PA model through VPP (`pa_detections`: its boxes on every target
+/// frame when already made, else it runs again from `pa_path`).
+fn compare_with_pa(
+    det: &Detector,
+    opts: &AdaptOptions,
+    pa_detections: Option<&[FrameDetections]>,
+    pa_path: &Path,
+    adapted_path: &Path,
+    prep: Arc<Preprocessor>,
+) -> Result<Comparison> {
+    let cfg = &opts.config;
+    let n = opts.target.len();
+    let m = if cfg.guard.max_frames == 0 { n } else { cfg.guard.max_frames.min(n) };
+    let at: Vec<usize> = (0..m).map(|k| k * n / m).collect();
+    let frames =
+        Subset { dataset: opts.target.dataset.clone(), indices: at.iter().map(|&k| opts.target.indices[k]).collect() };
+    // The pseudo-labels hold no box below the band's floor: confident starts there.
+    let ignore = cfg.pseudo_labels.ignore_score;
+    let score = cfg.guard.score.unwrap_or(ignore).max(ignore);
+    let pa = match pa_detections {
+        Some(d) => at.iter().map(|&k| d[k].clone()).collect(),
+        None => {
+            let (pa, _) = checkpoint::load_detector_with_post(pa_path, Some(&cfg.detector.post), opts.device)?;
+            detect::detect_with(&pa, prep.clone(), &frames, 4, true, &mut |_, _| {})?.0
+        }
+    };
+    let (adapted, _) = detect::detect_with(det, prep, &frames, 4, true, &mut |_, _| {})?;
+    guard::compare(&pa, &adapted, &cfg.guard, score, pa_path.to_path_buf(), adapted_path.to_path_buf())
 }
 
 /// The report as markdown: AP of the source-only and adapted models, pseudo-label quality.
@@ -634,6 +796,45 @@ pub fn markdown(r: &AdaptReport, cfg: &DetectorConfig) -> String {
         let rows: Vec<(String, Vec<LabelQuality>)> =
             r.pseudo_label_quality.iter().map(|q| (q.labels.clone(), q.rows.clone())).collect();
         s += &pseudo_labels::quality_table(&rows);
+    }
+    if !r.label_rounds.is_empty() {
+        s += "\nPositive pseudo-labels KA trained on:\n\n| before KA epoch | positives | per frame | frames without | thresholds |\n| --- | ---: | ---: | ---: | --- |\n";
+        for l in &r.label_rounds {
+            let epoch = if l.epoch == usize::MAX { "resumed".to_string() } else { (l.epoch + 1).to_string() };
+            let th: Vec<String> =
+                l.thresholds.classes.iter().map(|c| format!("{} {:.2}", c.class, c.threshold)).collect();
+            s += &format!(
+                "| {epoch} | {} | {:.2} | {} / {} | {} |\n",
+                l.positives.positives,
+                l.positives.per_frame,
+                l.positives.frames_without,
+                l.positives.frames,
+                th.join(", ")
+            );
+        }
+    }
+    if let Some(g) = &r.guard {
+        s += &format!(
+            "\nGuard ({} target training frames, confident = score ≥ {:.2}): **ship {}** — {}.\n\n| model | confident boxes per frame | mean score |\n| --- | ---: | ---: |\n| PA through VPP (`{}`) | {:.2} | {:.3} |\n| adapted (`{}`) | {:.2} | {:.3} |\n\nThe adapted model finds {:.0} % of the PA model's confident boxes; agreement F1 {:.2}.\n",
+            g.frames,
+            g.score,
+            g.ship,
+            g.reason,
+            g.pa_checkpoint.display(),
+            g.pa_vpp.per_frame,
+            g.pa_vpp.mean_score,
+            g.adapted_checkpoint.display(),
+            g.adapted.per_frame,
+            g.adapted.mean_score,
+            100.0 * g.retained,
+            g.agreement_f1
+        );
+    }
+    if !r.warnings.is_empty() {
+        s += "\nWarnings:\n\n";
+        for w in &r.warnings {
+            s += &format!("- {w}\n");
+        }
     }
     if let Some(v) = &r.vpp {
         s += &format!(

@@ -12,6 +12,7 @@ use tch::{Device, Kind, Tensor};
 use pi3det_geometry::Box3d;
 
 use super::{Candidates, DenseHead, TargetAssigner, ToDevice};
+use crate::adapt::coverage::TargetNegatives;
 use crate::box_coder::{limit_period_tensor, ResidualCoder};
 use crate::losses::{self, LossTerms};
 use crate::target_assigner::axis_aligned::{self, AnchorTargets, DIR_OFFSET, NUM_DIR_BINS};
@@ -127,6 +128,9 @@ pub struct AnchorBatchTargets {
     pub pos_codes: Tensor,
     pub pos_dir: Tensor,
     pub pos_weight: Tensor,
+    /// `[Q]` flat `b·N + anchor` of the background anchors that overlap a box of their class
+    /// ([`AnchorTargets::near_positive`]).
+    pub near_index: Tensor,
 }
 
 impl ToDevice for AnchorBatchTargets {
@@ -137,6 +141,7 @@ impl ToDevice for AnchorBatchTargets {
             pos_codes: self.pos_codes.to_device(d),
             pos_dir: self.pos_dir.to_device(d),
             pos_weight: self.pos_weight.to_device(d),
+            near_index: self.near_index.to_device(d),
         }
     }
 }
@@ -177,6 +182,13 @@ impl DenseHead for AnchorHead {
         losses.add("dir", dir);
     }
 
+    fn loss_target(&self, out: &AnchorOutput, t: &AnchorBatchTargets, neg: &TargetNegatives, losses: &mut LossTerms) {
+        let (_, [cls, loc, dir]) = AnchorHead::loss_with(self, out, t, Some(neg));
+        losses.add("cls", cls);
+        losses.add("loc", loc);
+        losses.add("dir", dir);
+    }
+
     fn candidates(&self, out: &AnchorOutput, frame: i64, score_threshold: f64, pre_max: i64) -> Candidates {
         let (boxes, scores, labels) = AnchorHead::candidates(self, out, &self.anchors, frame, score_threshold, pre_max);
         Candidates { boxes, scores, labels }
@@ -209,9 +221,11 @@ impl TargetAssigner for AnchorAssigner {
         let n = self.anchors.len() as i64;
         let mut labels = Vec::with_capacity(frames.len() * self.anchors.len());
         let (mut idx, mut codes, mut dir, mut w) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let mut near = Vec::new();
         for (k, t) in frames.iter().enumerate() {
             labels.extend_from_slice(&t.labels);
             idx.extend(t.pos_index.iter().map(|&i| i + k as i64 * n));
+            near.extend(t.near_positive.iter().map(|&i| i + k as i64 * n));
             codes.extend_from_slice(&t.pos_codes);
             dir.extend_from_slice(&t.pos_dir);
             let inv = 1.0 / t.pos_index.len().max(1) as f32;
@@ -224,6 +238,7 @@ impl TargetAssigner for AnchorAssigner {
             pos_codes: Tensor::from_slice(&codes).view([p, 7]),
             pos_dir: Tensor::from_slice(&dir),
             pos_weight: Tensor::from_slice(&w),
+            near_index: Tensor::from_slice(&near),
         }
     }
 }
@@ -242,11 +257,44 @@ impl AnchorHead {
 
     /// Returns `(total, [cls, loc, dir])`, each already weighted and averaged over the batch.
     pub fn loss(&self, out: &AnchorOutput, t: &AnchorBatchTargets) -> (Tensor, [Tensor; 3]) {
+        self.loss_with(out, t, None)
+    }
+
+    /// [`loss`](Self::loss) of a target batch under KA's background rules
+    /// ([`crate::adapt::coverage`]): background anchors the model scores at least
+    /// `neg.unsure_score` and that overlap no box are ignored, and each frame's background
+    /// anchors are weighted by its `neg.frame_weight`. The normalisation (positives per frame)
+    /// is unchanged, so a frame's background can only lose weight.
+    pub fn loss_with(
+        &self,
+        out: &AnchorOutput,
+        t: &AnchorBatchTargets,
+        neg: Option<&TargetNegatives>,
+    ) -> (Tensor, [Tensor; 3]) {
         let (b, n, c) = out.cls.size3().expect("cls is [B, N, C]");
-        let labels = &t.labels;
+        let (labels, bg_weights) = match neg {
+            Some(neg) => {
+                let _no_grad = tch::no_grad_guard();
+                let scores = out.cls.detach().sigmoid().amax([-1].as_slice(), false);
+                let background = t.labels.eq(0);
+                let near = (t.near_index.size()[0] > 0).then(|| {
+                    Tensor::zeros([b * n], (Kind::Bool, t.labels.device())).index_fill(0, &t.near_index, 1).view([b, n])
+                });
+                let unsure = neg.unsure(&scores, &background, near.as_ref());
+                let labels = t.labels.masked_fill(&unsure, -1);
+                let w = neg.background_weights(&labels.eq(0));
+                (labels, Some(w))
+            }
+            None => (t.labels.shallow_clone(), None),
+        };
+        let labels = &labels;
         let positives = labels.gt(0).to_kind(Kind::Float);
         let cared = labels.ge(0).to_kind(Kind::Float);
         let pos_norm = positives.sum_dim_intlist([1].as_slice(), true, Kind::Float).clamp_min(1.0);
+        let cared = match &bg_weights {
+            Some(w) => cared * w,
+            None => cared,
+        };
         let cls_weights = cared / &pos_norm;
         let one_hot = Tensor::zeros([b, n, c + 1], (Kind::Float, out.cls.device())).scatter_value(
             -1,
@@ -389,5 +437,73 @@ mod tests {
         assert!(changed > 1.0);
         assert_eq!(loss_values(&head, &noisy, &t_ign), l_ign, "ignored anchors changed the loss");
         assert_ne!(loss_values(&head, &noisy, &t_plain)[1], l_plain[1], "background anchors do count");
+    }
+
+    /// KA's background rules on a hand-built target batch of two frames: frame 0 has a positive
+    /// car, frame 1 only an ignored one (coverage 0). The coverage weight scales exactly the
+    /// background part of each frame's classification loss, a frame without positives pushes
+    /// nothing down, and unsure background anchors leave the loss unless they overlap a box.
+    #[test]
+    fn target_background_follows_coverage_and_unsure_outputs() {
+        let map = CenterMap { h: 16, w: 16, cell: [0.8, 0.8], origin: [-6.4, -6.4] };
+        let cfg = AnchorHeadConfig::default();
+        let vs = nn::VarStore::new(Device::Cpu);
+        let head = cfg.init(vs.root(), 8, 2, &map);
+        let assigner = cfg.assigner(&map);
+        let car = Box3d::new(1.1, -0.7, 0.8, 4.4, 1.9, 1.6, 0.2);
+        let f0 = assigner.assign(&[car], &[0], &[], &[]);
+        let f1 = assigner.assign(&[], &[], &[Box3d { x: -3.0, y: 3.0, ..car }], &[0]);
+        assert!(!f0.pos_index.is_empty() && !f0.near_positive.is_empty() && f1.pos_index.is_empty());
+        assert!(f0.near_positive.iter().all(|&k| f0.labels[k as usize] <= 0), "near anchors are not positives");
+        let t = assigner.collate(&[&f0, &f1]);
+        let n = assigner.anchors.len() as i64;
+        tch::manual_seed(11);
+        let f = (Kind::Float, Device::Cpu);
+        let cls = (Tensor::randn([2, n, 2], f) - 3.0).set_requires_grad(true);
+        let out = AnchorOutput {
+            cls: cls.shallow_clone(),
+            boxes: Tensor::randn([2, n, 7], f) * 0.1,
+            dir: Tensor::randn([2, n, 2], f),
+        };
+        let cls_loss = |neg: Option<&TargetNegatives>| head.loss_with(&out, &t, neg).1[0].double_value(&[]);
+        // With an unsure score no output reaches, the rules are the frame weights alone.
+        let rules = |w1: f64| TargetNegatives { unsure_score: 1.0, frame_weight: vec![1.0, w1] };
+        let plain = cls_loss(None);
+        assert!((cls_loss(Some(&rules(1.0))) - plain).abs() < 1e-6, "weight 1: the plain loss");
+        let (l0, l_half) = (cls_loss(Some(&rules(0.0))), cls_loss(Some(&rules(0.5))));
+        assert!(l0 < plain, "{l0} vs {plain}");
+        assert!((l_half - 0.5 * (l0 + plain)).abs() < 1e-6, "the background loss is linear in the weight");
+        // Weight 0 equals frame 1 with every anchor ignored.
+        let all_ignored = AnchorTargets { labels: vec![-1; f1.labels.len()], ..Default::default() };
+        let t_ign = assigner.collate(&[&f0, &all_ignored]);
+        let want = head.loss(&out, &t_ign).1[0].double_value(&[]);
+        assert!((l0 - want).abs() < 1e-6, "{l0} vs {want}");
+        // No gradient at all on the frame without positives.
+        head.loss_with(&out, &t, Some(&rules(0.0))).0.backward();
+        let g = cls.grad();
+        assert_eq!(g.get(1).abs().sum(Kind::Float).double_value(&[]), 0.0, "frame 1 pushed down");
+        assert!(g.get(0).abs().sum(Kind::Float).double_value(&[]) > 0.0);
+
+        // Unsure outputs: a far background anchor and a near-positive one scored 0.95.
+        let far = (0..n as usize).find(|&k| f0.labels[k] == 0 && !f0.near_positive.contains(&(k as i64))).unwrap();
+        let near = *f0.near_positive.iter().find(|&&k| f0.labels[k as usize] == 0).unwrap() as usize;
+        let mut bump = vec![0f32; 2 * n as usize * 2];
+        for k in [far, near] {
+            bump[2 * k] = 6.0;
+        }
+        let cls2 = (&out.cls.detach() + Tensor::from_slice(&bump).view([2, n, 2])).set_requires_grad(true);
+        let out2 =
+            AnchorOutput { cls: cls2.shallow_clone(), boxes: out.boxes.shallow_clone(), dir: out.dir.shallow_clone() };
+        let unsure = TargetNegatives { unsure_score: 0.5, frame_weight: vec![1.0, 1.0] };
+        head.loss_with(&out2, &t, Some(&unsure)).0.backward();
+        let g: Vec<f32> = Vec::try_from(cls2.grad().get(0).view([-1])).unwrap();
+        assert_eq!((g[2 * far], g[2 * far + 1]), (0.0, 0.0), "an unsure background anchor is ignored");
+        assert!(g[2 * near] > 0.0, "one overlapping a box stays background");
+        // And without the rules the unsure one is pushed down hardest.
+        let cls3 = cls2.detach().set_requires_grad(true);
+        let out3 =
+            AnchorOutput { cls: cls3.shallow_clone(), boxes: out.boxes.shallow_clone(), dir: out.dir.shallow_clone() };
+        head.loss(&out3, &t).0.backward();
+        assert!(cls3.grad().get(0).get(far as i64).get(0).double_value(&[]) > 0.0);
     }
 }

@@ -16,6 +16,7 @@ use tch::{Device, Tensor};
 pub use anchor_head::{AnchorHead, AnchorHeadConfig};
 pub use center_head::{CenterHead, CenterHeadConfig};
 
+use crate::adapt::coverage::TargetNegatives;
 use crate::error::{NnError, Result};
 use crate::losses::LossTerms;
 
@@ -42,6 +43,11 @@ pub trait DenseHead {
     fn forward_t(&self, bev: &Tensor, train: bool) -> Self::Output;
     /// Adds the head's named, weighted loss terms.
     fn loss(&self, out: &Self::Output, targets: &Self::Targets, losses: &mut LossTerms);
+    /// The loss of a Knowledge-Adaptation target batch under its background rules
+    /// ([`crate::adapt::coverage`]); a head without them trains the target as any batch.
+    fn loss_target(&self, out: &Self::Output, targets: &Self::Targets, _neg: &TargetNegatives, losses: &mut LossTerms) {
+        self.loss(out, targets, losses)
+    }
     /// Candidates of frame `frame` of the batch scoring at least `score_threshold`, at most
     /// `pre_max` of them, decoded into boxes.
     fn candidates(&self, out: &Self::Output, frame: i64, score_threshold: f64, pre_max: i64) -> Candidates;
@@ -110,6 +116,13 @@ fn mismatch(what: &str) -> NnError {
 pub trait AnyDenseHead {
     fn forward_t(&self, bev: &Tensor, train: bool) -> DenseOutput;
     fn loss(&self, out: &DenseOutput, targets: &BatchTargets, losses: &mut LossTerms) -> Result<()>;
+    fn loss_target(
+        &self,
+        out: &DenseOutput,
+        targets: &BatchTargets,
+        neg: &TargetNegatives,
+        losses: &mut LossTerms,
+    ) -> Result<()>;
     fn candidates(&self, out: &DenseOutput, frame: i64, score_threshold: f64, pre_max: i64) -> Result<Candidates>;
     fn output_tensors(&self, out: &DenseOutput) -> Result<Vec<Tensor>>;
     fn output_from_tensors(&self, t: Vec<Tensor>) -> Result<DenseOutput>;
@@ -123,6 +136,18 @@ impl<H: DenseHead> AnyDenseHead for H {
         let out = out.downcast_ref::<H::Output>().ok_or_else(|| mismatch("outputs"))?;
         let t = targets.downcast_ref::<H::Targets>().ok_or_else(|| mismatch("targets"))?;
         DenseHead::loss(self, out, t, losses);
+        Ok(())
+    }
+    fn loss_target(
+        &self,
+        out: &DenseOutput,
+        targets: &BatchTargets,
+        neg: &TargetNegatives,
+        losses: &mut LossTerms,
+    ) -> Result<()> {
+        let out = out.downcast_ref::<H::Output>().ok_or_else(|| mismatch("outputs"))?;
+        let t = targets.downcast_ref::<H::Targets>().ok_or_else(|| mismatch("targets"))?;
+        DenseHead::loss_target(self, out, t, neg, losses);
         Ok(())
     }
     fn candidates(&self, out: &DenseOutput, frame: i64, score_threshold: f64, pre_max: i64) -> Result<Candidates> {

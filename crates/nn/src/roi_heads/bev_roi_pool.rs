@@ -148,8 +148,8 @@ impl BevRoiPool {
 /// outside the map: `[B, N, C, P]`, the values of `grid_sampler_2d` (zero padding,
 /// align_corners = false). Written as gathers of the map's `[B·H·W, C]` rows (a view of a
 /// channels-last map) so that the gradient is one `index_add` into a map-sized buffer: libtorch's
-/// CPU grid-sampler backward took 27 ms on the preset's 192 × 128 × 128 map for 128 RoIs of 36
-/// samples, about a tenth of a training step.
+/// CPU grid-sampler backward on the preset's 192 × 128 × 128 map was a sizeable share of a
+/// training step. Measured: results/2026-12-06-training-step.md.
 fn bilinear(bev: &Tensor, px: &Tensor, py: &Tensor) -> Tensor {
     let (b, c, h, w) = bev.size4().expect("bev is [B, C, H, W]");
     let (n, p) = (px.size()[1], px.size()[2]);

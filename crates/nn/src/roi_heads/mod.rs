@@ -42,6 +42,7 @@ pub use voxel_roi_pool::{StageGeometry, VoxelPoolStage, VoxelRoiPool, VoxelRoiPo
 use rand_chacha::ChaCha8Rng;
 use tch::Tensor;
 
+use crate::adapt::coverage::TargetNegatives;
 use crate::data_loader::FrameGt;
 use crate::error::Result;
 use crate::losses::LossTerms;
@@ -61,6 +62,17 @@ pub trait SecondStage {
     fn forward_t(&self, src: &RoiSource, rois: &Tensor, map: &CenterMap, train: bool) -> Result<RoiOutput>;
     /// Adds the stage's named loss terms.
     fn loss(&self, out: &RoiOutput, targets: &RoiBatchTargets, losses: &mut LossTerms) -> Result<()>;
+    /// The loss of a Knowledge-Adaptation target batch under its background rules
+    /// ([`crate::adapt::coverage`]); by default the plain loss.
+    fn loss_target(
+        &self,
+        out: &RoiOutput,
+        targets: &RoiBatchTargets,
+        _neg: &TargetNegatives,
+        losses: &mut LossTerms,
+    ) -> Result<()> {
+        self.loss(out, targets, losses)
+    }
     /// Refined boxes `[B, N, 7]` (detector frame) and final scores `[B, N]`.
     fn refine(&self, out: &RoiOutput, rois: &Tensor, roi_scores: &Tensor, roi_labels: &Tensor) -> (Tensor, Tensor);
 }
@@ -89,6 +101,20 @@ impl SecondStage for RoiHead {
 
     fn loss(&self, out: &RoiOutput, targets: &RoiBatchTargets, losses: &mut LossTerms) -> Result<()> {
         let l = RoiHead::loss(self, out, targets)?;
+        for (name, t) in l.terms() {
+            losses.add(name, t.shallow_clone());
+        }
+        Ok(())
+    }
+
+    fn loss_target(
+        &self,
+        out: &RoiOutput,
+        targets: &RoiBatchTargets,
+        neg: &TargetNegatives,
+        losses: &mut LossTerms,
+    ) -> Result<()> {
+        let l = RoiHead::loss_with(self, out, targets, Some(neg))?;
         for (name, t) in l.terms() {
             losses.add(name, t.shallow_clone());
         }

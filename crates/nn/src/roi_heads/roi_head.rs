@@ -23,6 +23,7 @@ use super::proposal::ProposalConfig;
 use super::roi_coder::{corner_loss, RoiCoder};
 use super::roi_sampler::{RoiBatchTargets, RoiSamplerConfig};
 use super::voxel_roi_pool::{StageGeometry, VoxelRoiPool, VoxelRoiPoolConfig};
+use crate::adapt::coverage::TargetNegatives;
 use crate::box_coder::limit_period_tensor;
 use crate::error::{NnError, Result};
 use crate::losses;
@@ -405,6 +406,15 @@ impl RoiHead {
 
     /// Losses of `out` against the sampled targets (`out` computed on `t.rois`, same device).
     pub fn loss(&self, out: &RoiOutput, t: &RoiBatchTargets) -> Result<RoiLosses> {
+        self.loss_with(out, t, None)
+    }
+
+    /// [`loss`](Self::loss) of a target batch under KA's background rules
+    /// ([`crate::adapt::coverage`]): sampled RoIs that overlap no box (IoU 0) and whose
+    /// first-stage score is at least `neg.unsure_score` leave the score loss, and RoIs with a
+    /// zero score target are weighted by their frame's `neg.frame_weight`. The score loss is
+    /// still averaged over the rows it keeps.
+    pub fn loss_with(&self, out: &RoiOutput, t: &RoiBatchTargets, neg: Option<&TargetNegatives>) -> Result<RoiLosses> {
         let (b, n) = out.iou_logits.size2()?;
         if t.iou_targets.size() != [b, n] || t.reg_targets.size() != [b, n, 7] {
             return Err(NnError::Input(format!(
@@ -415,14 +425,28 @@ impl RoiHead {
         let cfg = &self.cfg;
         let k = out.iou_logits.kind();
         // Score: BCE against the IoU-guided target over the valid rows.
-        let cls_valid = t.cls_valid.to_kind(k);
+        let (cls_valid, cls_weight) = match neg {
+            Some(neg) => {
+                let valid = t.cls_valid.gt(0.5);
+                let unsure = neg.unsure(&t.roi_scores, &valid.logical_and(&t.ious.le(0.0)), None);
+                let valid = valid.logical_and(&unsure.logical_not());
+                let w = neg.background_weights(&valid.logical_and(&t.iou_targets.le(0.0)));
+                let valid = valid.to_kind(k);
+                let weight = &valid * w.to_kind(k);
+                (valid, weight)
+            }
+            None => {
+                let valid = t.cls_valid.to_kind(k);
+                (valid.shallow_clone(), valid)
+            }
+        };
         let bce = out.iou_logits.binary_cross_entropy_with_logits::<Tensor>(
             &t.iou_targets.to_kind(k),
             None,
             None,
             Reduction::None,
         );
-        let rcnn_iou = (bce * &cls_valid).sum(k) / cls_valid.sum(k).clamp_min(1.0) * cfg.rcnn_cls_weight;
+        let rcnn_iou = (bce * &cls_weight).sum(k) / cls_valid.sum(k).clamp_min(1.0) * cfg.rcnn_cls_weight;
         // Residuals and corners over the regressed rows.
         let reg_valid = t.reg_valid.to_kind(k).view([-1]);
         let fg_weight = &reg_valid / reg_valid.sum(k).clamp_min(1.0);

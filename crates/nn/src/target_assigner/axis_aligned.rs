@@ -23,6 +23,11 @@ pub struct AnchorTargets {
     pub pos_index: Vec<i64>,
     pub pos_codes: Vec<f32>,
     pub pos_dir: Vec<i64>,
+    /// Anchors (ascending) that overlap a box of their class (BEV IoU > 0) without being its
+    /// positives: background explained by a box (a badly placed anchor on it), which
+    /// Knowledge-Adaptation keeps as background however the model scores it
+    /// ([`crate::adapt::coverage`]).
+    pub near_positive: Vec<i64>,
 }
 
 /// Axis-aligned rectangle `[x0, y0, x1, y1]` of the box rotated to the nearest multiple of 90°.
@@ -150,7 +155,9 @@ pub fn assign(
         touched.iter().chain(forced.iter().map(|(k, _)| k)).copied().filter(|&k| assigned[k] != u32::MAX).collect();
     pos.sort_unstable();
     pos.dedup();
-    let mut t = AnchorTargets { labels, ..Default::default() };
+    let mut near: Vec<i64> = touched.iter().filter(|&&k| assigned[k] == u32::MAX).map(|&k| k as i64).collect();
+    near.sort_unstable();
+    let mut t = AnchorTargets { labels, near_positive: near, ..Default::default() };
     for k in pos {
         let g = assigned[k] as usize;
         t.labels[k] = gt_class[g] as i64 + 1;
