@@ -1,9 +1,11 @@
 //! `pi3det bench live`: `pi3det run`'s path end to end on this machine — a loopback replayer
 //! sends an OS1-64 packet stream (1024 × 10 Hz, LEGACY) over UDP, or a dataset is streamed at
 //! 10 Hz, and the detector runs on every sweep it can take — with and without Virtual Platform
-//! Pose. Prints latency percentiles (sweep complete → detections), drops and memory.
+//! Pose. Prints latency percentiles (sweep complete → detections), drops and memory. `--load N`
+//! runs N busy processes beside it for the whole benchmark, as the other software of a robot
+//! computer would be, so the latency goal is measured under contention too.
 //!
-//! `pi3det bench live --ckpt runs/demo_net/pointpillars_vehicle/final.safetensors [--data runs/demo/seed_0/data/quadruped/val [--udp]] [--seconds 600]`
+//! `pi3det bench live --ckpt runs/demo/pointpillars_vehicle/final.safetensors [--data runs/demo/data/quadruped/val [--udp]] [--seconds 600] [--load 1]`
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -47,8 +49,38 @@ pub struct BenchLiveArgs {
     pub vpp: String,
     #[arg(long, default_value_t = 2)]
     pub queue: usize,
+    /// Busy processes (a spinning shell loop each) running beside the benchmark.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub load: usize,
     #[command(flatten)]
     pub device: DeviceArgs,
+}
+
+/// Busy processes, ended when dropped.
+struct BusyLoad(Vec<std::process::Child>);
+
+impl BusyLoad {
+    fn start(n: usize) -> Result<Self> {
+        let mut children = Vec::with_capacity(n);
+        for _ in 0..n {
+            let child = std::process::Command::new("sh")
+                .args(["-c", "while :; do :; done"])
+                .stdin(std::process::Stdio::null())
+                .spawn()
+                .context("--load: cannot start a busy process (sh)")?;
+            children.push(child);
+        }
+        Ok(Self(children))
+    }
+}
+
+impl Drop for BusyLoad {
+    fn drop(&mut self) {
+        for c in &mut self.0 {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
 }
 
 /// Up to 30 frames of `data` encoded as OS1-64 sweeps (packets concatenated).
@@ -145,13 +177,10 @@ fn one(args: &BenchLiveArgs, vpp: bool, dir: &std::path::Path) -> Result<RunSumm
         overwrite: false,
         device: args.device.clone(),
     };
-    let detector = LiveDetector::load(&run_args)?;
-    // The first passes allocate libtorch's buffers and build oneDNN's kernels: not latency a
-    // running robot sees.
-    let warm = crate::frames::vehicle_frames(1)?;
-    for _ in 0..5 {
-        detector.detect(&warm[0])?;
-    }
+    let mut detector = LiveDetector::load(&run_args)?;
+    // What `pi3det run` does before its source opens.
+    let warm = detector.warm_up(crate::run::WARM_UP_PASSES)?;
+    eprintln!("  {warm}");
     let (source, sender): (Box<dyn Source>, Option<std::thread::JoinHandle<()>>) = match &args.data {
         Some(d) if !args.udp => {
             let s = open_subset(d, None, None, 0)?;
@@ -193,7 +222,15 @@ pub fn run(args: &BenchLiveArgs) -> Result<()> {
         Some(d) => format!("{} at {} Hz", d.display(), args.rate),
         None => format!("synthetic OS1-64 1024 packets (random ranges) over UDP loopback at {} Hz", args.rate),
     };
-    println!("pi3det run on {input}, {:.0} s per row, queue {}", args.seconds, args.queue);
+    let threads = args.device.torch_threads.unwrap_or_else(crate::run::live_threads);
+    println!(
+        "pi3det run on {input}, {:.0} s per row, queue {}, {threads} libtorch thread(s), OMP_WAIT_POLICY {}, {} busy process(es) beside it",
+        args.seconds,
+        args.queue,
+        std::env::var("OMP_WAIT_POLICY").unwrap_or_else(|_| "unset".into()),
+        args.load
+    );
+    let _load = BusyLoad::start(args.load)?;
     println!("| VPP | sweeps in | processed | dropped | p50 ms | p95 ms | p99 ms | max ms | mean: wait / pillars / network / NMS ms | RSS start → each minute → end MB |");
     println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- | --- |");
     for &vpp in modes {

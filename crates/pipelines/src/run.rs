@@ -9,6 +9,19 @@
 //! recorded source without `rate=` waits instead, so every sweep is processed. Latency runs from
 //! a sweep's completion (its last packet, or its message read) to its detections; p50/p95/p99
 //! are shown on the progress line and printed at the end (Ctrl-C ends a live run cleanly).
+//!
+//! A robot computer is shared (SLAM, planning, drivers), and a run must not fall apart when a
+//! neighbour takes a core. Every parallel layer of libtorch waits for its slowest thread; with
+//! OpenMP's spinning waits a thread whose core a neighbour has taken stalls the whole layer and
+//! its siblings burn their time slices spinning, so `pi3det` starts `run` and `bench live` with
+//! `OMP_WAIT_POLICY=PASSIVE` (unless set): waiting threads sleep. libtorch gets [`live_threads`]
+//! intra-op threads unless `--torch-threads` or `PI3DET_TORCH_THREADS` says otherwise.
+//!
+//! Before the source opens, the whole path runs on a simulated sweep a few times (allocator
+//! buffers, oneDNN's kernels), so the first real sweep is not the slow one; a checkpoint whose
+//! inference precision is `auto` is timed in f32 and in bf16 there and keeps the faster (bf16
+//! pays on some CPUs with native bfloat16 and costs on others). Measured:
+//! results/2026-12-06-live-threads.md.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -26,6 +39,7 @@ use pi3det_nn::cli::args::{open_subset, DeviceArgs};
 use pi3det_nn::data_loader::prepare_frame;
 use pi3det_nn::detect::to_objects;
 use pi3det_nn::export::TorchScriptModel;
+use pi3det_nn::precision::Precision;
 use pi3det_nn::preprocess::Preprocessor;
 use pi3det_nn::Detector;
 
@@ -81,6 +95,25 @@ pub struct LiveDetector {
     prep: Arc<Preprocessor>,
 }
 
+/// What the warm-up found: the last pass's total (ms), and for an `auto` precision the one kept
+/// with each one's best network time (ms).
+#[derive(Debug, Clone)]
+pub struct WarmUp {
+    pub last_ms: f64,
+    pub precision: Option<(Precision, Vec<(Precision, f64)>)>,
+}
+
+impl std::fmt::Display for WarmUp {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "warmed up ({WARM_UP_PASSES} passes on a simulated sweep, the last {:.0} ms)", self.last_ms)?;
+        if let Some((p, times)) = &self.precision {
+            let t: Vec<String> = times.iter().map(|(p, ms)| format!("{p:?} {ms:.0} ms")).collect();
+            write!(f, "; precision auto: network {} → {p:?}", t.join(", "))?;
+        }
+        Ok(())
+    }
+}
+
 /// Stage times of one sweep (ms).
 #[derive(Debug, Clone, Copy, Default)]
 pub struct StageMs {
@@ -89,9 +122,20 @@ pub struct StageMs {
     pub post: f64,
 }
 
+/// libtorch intra-op threads for a live run: the cores, at most four (the network's layers are
+/// small; more threads wait more at each layer's end and take cores from the neighbours).
+/// `PI3DET_TORCH_THREADS` overrides it.
+pub fn live_threads() -> usize {
+    let env = std::env::var("PI3DET_TORCH_THREADS").ok().and_then(|v| v.parse::<usize>().ok()).filter(|&n| n > 0);
+    env.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1).min(4))
+}
+
+/// Network passes on a simulated sweep before a run (see the module doc).
+pub const WARM_UP_PASSES: usize = 3;
+
 impl LiveDetector {
     pub fn load(args: &RunArgs) -> Result<Self> {
-        let device = args.device.setup(0)?;
+        let device = args.device.setup(args.device.torch_threads.unwrap_or_else(live_threads))?;
         let adjust = |cfg: &mut pi3det_nn::DetectorConfig| {
             if let Some(t) = args.score_threshold {
                 cfg.post.score_threshold = t;
@@ -115,6 +159,48 @@ impl LiveDetector {
             prep = prep.with_frame_transform(pi3det_nn::cli::detect::vpp(&cfg, h)?);
         }
         Ok(Self { net, prep: Arc::new(prep) })
+    }
+
+    /// Runs the whole path (points → pillars → network → NMS) on a simulated vehicle sweep
+    /// `passes` times; with a checkpoint inferring in `auto` precision on the CPU, in f32 and in
+    /// bf16, keeping the one whose network time was lower. Returns what it found.
+    pub fn warm_up(&mut self, passes: usize) -> Result<WarmUp> {
+        let frames = crate::frames::vehicle_frames(1)?;
+        let passes = passes.max(1);
+        let time = |d: &Self| -> Result<(f64, f64)> {
+            let mut best = f64::INFINITY;
+            let mut last = 0.0;
+            for _ in 0..passes {
+                let (_, ms) = d.detect(&frames[0])?;
+                best = best.min(ms.network);
+                last = ms.prep + ms.network + ms.post;
+            }
+            Ok((best, last))
+        };
+        let choose = match &self.net {
+            Net::Native(d) => d.cfg().precision == Precision::Auto && !d.device().is_cuda(),
+            Net::Script(_) => false,
+        };
+        if !choose {
+            let (_, last_ms) = time(self)?;
+            return Ok(WarmUp { last_ms, precision: None });
+        }
+        let mut network_ms = Vec::new();
+        for p in [Precision::F32, Precision::Bf16] {
+            self.set_precision(p)?;
+            network_ms.push((p, time(self)?));
+        }
+        let (p, (_, last_ms)) =
+            network_ms.iter().copied().min_by(|a, b| a.1 .0.total_cmp(&b.1 .0)).expect("two precisions timed");
+        self.set_precision(p)?;
+        Ok(WarmUp { last_ms, precision: Some((p, network_ms.iter().map(|(p, (n, _))| (*p, *n)).collect())) })
+    }
+
+    fn set_precision(&mut self, p: Precision) -> Result<()> {
+        if let Net::Native(d) = &mut self.net {
+            d.set_precision(p)?;
+        }
+        Ok(())
     }
 
     pub fn detector(&self) -> &Detector {
@@ -322,7 +408,13 @@ pub fn run(args: &RunArgs) -> Result<()> {
             bail!("{} exists; pass --overwrite to replace it", r.display());
         }
     }
-    let detector = LiveDetector::load(args)?;
+    let mut detector = LiveDetector::load(args)?;
+    let warm = detector.warm_up(WARM_UP_PASSES)?;
+    eprintln!(
+        "run: {} libtorch thread(s), OMP_WAIT_POLICY {}; {warm}",
+        tch::get_num_threads(),
+        std::env::var("OMP_WAIT_POLICY").unwrap_or_else(|_| "unset".into())
+    );
     let source = open_any_source(&args.source)?;
     let mut sinks = sink_specs.iter().map(|s| open_sink(s, args.overwrite)).collect::<Result<Vec<_>, _>>()?;
     eprintln!(
