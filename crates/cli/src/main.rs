@@ -1,7 +1,7 @@
 //! `pi3det`: perspective-invariant LiDAR 3D object detection (Pi3DET) from the command line.
 //!
-//! This binary does not link libtorch: the detector commands (`train`, `detect`, `adapt`,
-//! `autolabel`, `demo`, `benchmark`, `bench nn`) are listed here but run in `pi3det-torch` (crates/pipelines), see [`cmd::torch`].
+//! This binary does not link libtorch: the detector commands ([`cmd::torch::FORWARDED`]) are
+//! listed here but run in `pi3det-torch` (crates/pipelines), see [`cmd::torch`].
 
 mod cmd;
 
@@ -81,24 +81,10 @@ enum BenchCommand {
 fn main() -> std::process::ExitCode {
     // The detector commands, and `help` for them, go to pi3det-torch with the arguments as given.
     let args: Vec<std::ffi::OsString> = std::env::args_os().skip(1).collect();
-    if cmd::torch::is_help_for_forwarded(&args) {
+    if cmd::torch::is_help_for_forwarded(&args) || cmd::torch::forwarded(&args).is_some() {
         return finish(cmd::torch::run(&args));
     }
     let cli = Cli::parse();
-    if matches!(
-        cli.command,
-        Command::Train(_)
-            | Command::Detect(_)
-            | Command::Adapt(_)
-            | Command::Autolabel(_)
-            | Command::Demo(_)
-            | Command::Benchmark(_)
-            | Command::Run(_)
-            | Command::Export(_)
-            | Command::Bench(BenchCommand::Nn(_) | BenchCommand::Live(_) | BenchCommand::Sparse(_))
-    ) {
-        return finish(cmd::torch::run(&args));
-    }
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
         .with_writer(std::io::stderr)
@@ -146,5 +132,32 @@ fn finish(result: anyhow::Result<std::process::ExitCode>) -> std::process::ExitC
             eprintln!("error: {}", pi3det_data::error::report(e.as_ref()));
             std::process::ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    /// The subcommands declared with [`Forwarded`] arguments are exactly [`cmd::torch::FORWARDED`].
+    #[test]
+    fn forwarded_variants_match_the_list() {
+        fn walk(c: &clap::Command, prefix: &str, out: &mut Vec<String>) {
+            for s in c.get_subcommands() {
+                let name = format!("{prefix}{}", s.get_name());
+                if s.get_arguments().any(|a| a.get_id() == "args" && a.is_trailing_var_arg_set()) {
+                    out.push(name);
+                } else {
+                    walk(s, &format!("{name} "), out);
+                }
+            }
+        }
+        let mut declared = Vec::new();
+        walk(&Cli::command(), "", &mut declared);
+        let mut listed: Vec<String> = cmd::torch::FORWARDED.iter().map(|s| s.to_string()).collect();
+        declared.sort();
+        listed.sort();
+        assert_eq!(declared, listed);
     }
 }

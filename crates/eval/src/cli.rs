@@ -53,7 +53,7 @@ pub struct EvalArgs {
     pub no_breakdown: bool,
     /// Also print the error breakdown after the report (AP_R40 and recall by distance and by
     /// points per box, found-but-misplaced misses, localisation errors per class at the strict
-    /// thresholds); with --json / --output it is the field "breakdown".
+    /// thresholds); with --json / --out it is the field "breakdown".
     #[arg(long)]
     pub breakdown: bool,
     /// Image size used to clip projected 2D boxes of LiDAR detections on KITTI frames when the
@@ -66,9 +66,9 @@ pub struct EvalArgs {
     /// Print the report as JSON instead of text.
     #[arg(long)]
     pub json: bool,
-    /// Also write the JSON report to this file.
-    #[arg(long, value_name = "FILE")]
-    pub output: Option<PathBuf>,
+    /// Also write the JSON report to this file (`--output` is the old spelling).
+    #[arg(long, value_name = "FILE", alias = "output")]
+    pub out: Option<PathBuf>,
 }
 
 fn parse_overlap(spec: &str) -> Result<(String, Overlaps), EvalError> {
@@ -175,7 +175,7 @@ pub fn format_output(report: &EvalReport, breakdown: Option<&Breakdown>) -> Stri
     out
 }
 
-/// The JSON `pi3det eval --json` prints (and `--output` writes).
+/// The JSON `pi3det eval --json` prints (and `--out` writes).
 pub fn json_output(report: &EvalReport, breakdown: Option<&Breakdown>) -> Result<String, EvalError> {
     serde_json::to_string_pretty(&JsonOutput { report, breakdown })
         .map_err(|e| EvalError::Input(format!("JSON output: {e}")))
@@ -185,7 +185,7 @@ pub fn json_output(report: &EvalReport, breakdown: Option<&Breakdown>) -> Result
 pub fn run(args: &EvalArgs) -> Result<(), EvalError> {
     let (report, breakdown) = args.evaluate_with_breakdown()?;
     let json = || json_output(&report, breakdown.as_ref());
-    if let Some(path) = &args.output {
+    if let Some(path) = &args.out {
         std::fs::write(path, json()? + "\n").map_err(|e| EvalError::io(path, e))?;
     }
     if args.json {

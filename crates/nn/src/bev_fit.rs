@@ -4,9 +4,9 @@
 //! the points.
 //!
 //! Why: after [`crate::ground_fit`], the "what if exact" rows of `pi3det eval --breakdown` put
-//! the remaining Car 3D@0.7 loss on the BEV centre and the heading (seed 0, vehicle val: 47.2 as
-//! detected, 58.7 with the GT's centre, 55.7 with its heading). A dense car's visible faces are
-//! measured to a few centimetres; the network's regression from a 0.64 m map is not.
+//! the remaining Car 3D@0.7 loss on the BEV centre and the heading (measured:
+//! results/2026-12-02-vertical-box-fit.md). A dense car's visible faces are measured to a few
+//! centimetres; the network's regression from a 0.64 m map is not.
 //!
 //! Heading: the closeness criterion of L-shape fitting (Zhang et al., "Efficient L-Shape Fitting
 //! for Vehicle Detection Using Laser Scanners", IV 2017), searched only near the predicted heading
@@ -19,7 +19,7 @@
 //! dropped (an occluder, a merged neighbour).
 //!
 //! The defaults were chosen on one checkpoint's vehicle val split (the demo's Pi3DET-Net PA
-//! model, seed 0: Car BEV / 3D@0.7 59.2 / 37.2 → 73.0 / 60.1; README "Planar box fit").
+//! model, seed 0). Measured: results/2026-12-02-planar-box-fit.md.
 //!
 //! Runs in the detector's frame; the sensor's planar position there comes from the frame's
 //! `detector_from_lidar`. Configured as `[post.bev_fit]`; absent, boxes keep their BEV.

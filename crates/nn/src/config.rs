@@ -136,7 +136,7 @@ pub struct TrainConfig {
     pub threads: usize,
     /// Compute precision of the 2-D backbone and the neck in training steps (the top-level
     /// `precision` is inference's). f32 by default: bf16 training cost the Pi3DET-Net preset
-    /// about 2 Car BEV points (README, "Mixed precision").
+    /// Car AP (results/2026-12-06-mixed-precision.md).
     pub precision: crate::precision::Precision,
     /// Batches prepared ahead on the loader thread.
     pub prefetch: usize,

@@ -95,10 +95,10 @@ pub fn resolve(choice: DeviceChoice) -> Result<Device> {
 }
 
 /// Intra-op threads for libtorch on the CPU: the config's value, else the `PI3DET_TORCH_THREADS`
-/// environment variable, else every core. Measured on an idle two-core machine with two threads,
-/// an epoch of the demo (360 frames, CPU preset at batch 1) took 54–65 s, the loader thread
-/// keeping up (under a second of waiting per epoch); on a machine busy with other work one
-/// thread can be faster, which the variable or `--torch-threads 1` selects.
+/// environment variable, else every core. On an idle machine the loader thread keeps up with
+/// every core training; on a machine busy with other work one thread can be faster, which the
+/// variable or `--torch-threads 1` selects. Measured:
+/// results/2026-12-01-two-stage-preset-seeds.md.
 pub fn default_threads(configured: usize) -> usize {
     if configured > 0 {
         return configured;
@@ -118,10 +118,10 @@ pub fn set_threads(n: usize) {
 /// Makes glibc keep freed memory for reuse instead of handing each large block back to the
 /// kernel. libtorch on the CPU allocates and frees tens of MB per layer and step; with glibc's
 /// defaults every such block comes back as fresh pages the kernel must fault in and zero
-/// (`perf`: `clear_page_erms` and page faults among the top entries). Measured A/B, same
-/// binary otherwise: `pi3det bench sparse` 743 / 591 → 489 / 503 ms, `bench nn`'s two-stage
-/// PointPillars step 179.5 → 163.9 ms (single runs). Call once, at the start of a process that
-/// runs networks; a no-op off glibc.
+/// (`perf`: `clear_page_erms` and page faults among the top entries); keeping them makes both
+/// `pi3det bench sparse` and `bench nn`'s two-stage PointPillars step faster. Measured:
+/// results/2026-12-02-voxel-detectors.md. Call once, at the start of a process that runs
+/// networks; a no-op off glibc.
 pub fn keep_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only changes allocator thresholds; it is called before other threads start.

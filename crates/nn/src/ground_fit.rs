@@ -3,12 +3,12 @@
 //!
 //! Why: the error breakdown of the two-stage PointPillars (`pi3det detect --eval`) shows that
 //! 3D AP@0.7 is lost almost entirely on z and height (with the GT's z and height the 3D AP
-//! equals the BEV AP), and the network's z regresses towards the mean ground height (fitted
-//! slope 0.79 of predicted on true z over 3.6k simulated cars): the BEV map has collapsed the
-//! height that the points still carry. The ground beside a box and the roof inside it are
-//! measured directly, so this fit replaces the regressed vertical extent where the points
-//! support it and keeps it where they do not (too few ground points, a ground far from the
-//! predicted bottom, nothing above it inside the footprint).
+//! equals the BEV AP), and the network's z regresses towards the mean ground height: the BEV map
+//! has collapsed the height that the points still carry. The ground beside a box and the roof
+//! inside it are measured directly, so this fit replaces the regressed vertical extent where the
+//! points support it and keeps it where they do not (too few ground points, a ground far from
+//! the predicted bottom, nothing above it inside the footprint). Measured:
+//! results/2026-12-02-vertical-box-fit.md.
 //!
 //! Runs in the detector's frame (z up, as the boxes are upright there), on the points the
 //! detector saw. Configured as `[post.ground_fit]`; absent, detections are left as the network
@@ -49,7 +49,7 @@ pub struct GroundFitConfig {
 
 impl Default for GroundFitConfig {
     fn default() -> Self {
-        // Chosen on one seed's vehicle val split (360 frames; README "Vertical box fit").
+        // Chosen on one seed's vehicle val split (360 frames): results/2026-12-02-vertical-box-fit.md.
         Self {
             margin_m: 2.0,
             ground_quantile: 0.05,

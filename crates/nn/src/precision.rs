@@ -5,13 +5,12 @@
 //! gradient reaches the f32 weights through the cast.
 //!
 //! `bf16` pays where the hardware has native bfloat16 dot products (x86 `avx512_bf16` / AMX,
-//! through oneDNN; measured on a 2-core Zen 4 with the Pi3DET-Net preset: inference network
-//! 48 → 35 ms, training step 200 → 165 ms); elsewhere oneDNN emulates it, slower than f32.
-//! `auto` picks bf16 on CPUs that have it, f32 otherwise.
+//! through oneDNN); elsewhere oneDNN emulates it, slower than f32. `auto` picks bf16 on CPUs that
+//! have it, f32 otherwise.
 //!
 //! Inference (`precision`) and training (`train.precision`) are set apart because they behave
-//! differently: the f32-trained preset scores the same in bf16 (Car BEV@0.7 71.14 → 71.03), but
-//! training in bf16 cost it about 2 points on two seeds (69.2 and 68.9 against 71.1 and 71.6).
+//! differently: an f32-trained model scores the same when it infers in bf16, but training in bf16
+//! cost the Pi3DET-Net preset AP. Measured: results/2026-12-06-mixed-precision.md.
 
 use serde::{Deserialize, Serialize};
 use tch::nn::{self, Module};

@@ -5,12 +5,11 @@
 //! its box but has its score multiplied by `score_factor`, so it ranks below the ones that look
 //! like people.
 //!
-//! Why: pedestrians are the class precision decides. On the demo's seed-0 vehicle val split
-//! (the Pi3DET-Net PA model with point features), half of the detections scoring ≥ 0.3 are
-//! wrong; the highest body point of the wrong ones has a median of 1.0 m above their bottom
-//! (the right ones' 10 % quantile: 1.15 m), and almost only wrong ones have points within 1 m
-//! above their top. The settings were chosen on that split and then held fixed on two freshly
-//! simulated val sets of 720 frames each (README, "Upright check").
+//! Why: pedestrians are the class precision decides, and on the demo's vehicle val split (the
+//! Pi3DET-Net PA model with point features) the wrong detections are told from the right ones by
+//! their points: the wrong ones' bodies end lower, and almost only wrong ones have points just
+//! above their top. The settings were chosen on that split and then held fixed on freshly
+//! simulated val sets. Measured: results/2026-12-03-upright-check.md.
 //!
 //! The bottom is the box's own (after [`crate::ground_fit`], the local ground). Points are those
 //! within `radius_m` of the box centre in the plane: pedestrians' headings are noisy, a circle is

@@ -3,7 +3,7 @@
 //! → score filter → a new Pi3DET-layout label set (an info file over the original points),
 //! with a quality report per stage when the data has ground truth.
 //!
-//! `pi3det autolabel --data runs/demo/data/drone/val --ckpt A.safetensors --ckpt B.safetensors --tta flip,rot --out labels/`
+//! `pi3det autolabel --data runs/demo/data/drone/val --ckpt A.safetensors --ckpt B.safetensors --tta-views flip,rot --out labels/`
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -30,9 +30,10 @@ pub struct AutolabelArgs {
     #[arg(long = "ckpt", required = true)]
     pub ckpt: Vec<PathBuf>,
     /// Test-time augmentation views per checkpoint, comma-separated: none (the frame as it is),
-    /// flip (mirrored left/right), rot (turned by ±--tta-rot-deg about the vertical).
-    #[arg(long, value_delimiter = ',', default_value = "none")]
-    pub tta: Vec<TtaKind>,
+    /// flip (mirrored left/right), rot (turned by ±--tta-rot-deg about the vertical). (`--tta`
+    /// is the old spelling: elsewhere `--tta` is a switch.)
+    #[arg(long, alias = "tta", value_delimiter = ',', default_value = "none")]
+    pub tta_views: Vec<TtaKind>,
     #[arg(long, default_value_t = 15.0)]
     pub tta_rot_deg: f64,
     /// Level frames through Virtual Platform Pose to this sensor height (as `pi3det detect`).
@@ -279,7 +280,7 @@ pub fn run_autolabel(args: &AutolabelArgs) -> Result<()> {
     let subset = args.data.subset(&split, 0)?;
     let infos = subset.infos()?;
     std::fs::create_dir_all(args.out.join("detections")).with_context(|| format!("creating {}", args.out.display()))?;
-    let views = views(&args.tta, args.tta_rot_deg);
+    let views = views(&args.tta_views, args.tta_rot_deg);
     let e = ensemble(
         &EnsembleOptions {
             subset: &subset,

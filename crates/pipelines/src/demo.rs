@@ -5,10 +5,11 @@
 //! The validation split does not change with `--seed`: it is simulated with its own seed
 //! (`--val-seed`) and its sequences take the platform's layouts in fixed proportions (stratified),
 //! so a change of seed moves only what training does. (When it was drawn with the training seed,
-//! the same vehicle model scored Car BEV 56–75 on different 12-sequence splits: 2 to 6 of the 12
-//! were suburban.) `--seeds 0,1,2` measures what remains: simulation, training and evaluation once
-//! per seed, then the mean ± sample standard deviation per platform and class. `demo.json` holds
-//! the settings, every seed's rows and timings, and that summary.
+//! the same vehicle model scored far apart on different 12-sequence splits, which held different
+//! numbers of suburban sequences: results/2026-12-03-demo-point-features-seeds-0-1.md.)
+//! `--seeds 0,1,2` measures what remains: simulation, training and evaluation once per seed, then
+//! the mean ± sample standard deviation per platform and class. `demo.json` holds the settings,
+//! every seed's rows and timings, and that summary.
 //!
 //! `--reuse` keeps data and a checkpoint already in the working folder, but only those made with
 //! the same settings: the data folder's `.complete` marker records the simulation plans and seed,
@@ -59,9 +60,8 @@ pub struct DemoArgs {
     /// Knowledge-Adaptation epochs over each target's training frames (0: no adaptation).
     #[arg(long, default_value_t = 2, value_name = "N")]
     pub ka_epochs: usize,
-    /// Vehicle training sequences. More distinct frames at the same number of steps: in one run
-    /// each, 40 × 30 frames for 3 epochs gave Car BEV@0.7 57.9 where 12 × 30 for 10 epochs gave
-    /// 56.3 (two-stage; single-stage 57.2 against 43.5) — see README.
+    /// Vehicle training sequences. More distinct frames at the same number of steps: 40 × 30
+    /// frames for 3 epochs beat 12 × 30 for 10 epochs (results/2026-12-01-two-stage-preset-seeds.md).
     #[arg(long, default_value_t = 40, value_name = "N")]
     pub train_sequences: u32,
     /// Validation sequences per platform (vehicle, drone, quadruped).

@@ -62,7 +62,9 @@ fn main() -> std::process::ExitCode {
         .with_writer(std::io::stderr)
         .without_time()
         .init();
-    let cli = Cli::parse();
+    let mut args = std::env::args_os();
+    let program = args.next().unwrap_or_else(|| "pi3det".into());
+    let cli = Cli::parse_from(std::iter::once(program).chain(nn::rewrite_old_switches(args.collect())));
     if let Some(n) = cli.threads {
         // Ignored if rayon was already initialised, which cannot happen this early.
         let _ = rayon::ThreadPoolBuilder::new().num_threads(n).build_global();

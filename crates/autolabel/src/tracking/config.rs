@@ -74,7 +74,7 @@ impl Default for TrackingConfig {
         };
         Self {
             // Car: MS3D++ starts tracks at score 0.5 and keeps those with 3 boxes ≥ 0.7; on
-            // `pi3det bench autolabel` that dropped every far car (recall@0.7 50 → 79 with these).
+            // `pi3det bench autolabel` that dropped every far car (results/2026-12-01-autolabel.md).
             classes: vec![
                 class("Car", 0.3, -0.3, 1, 0.5),
                 class("Pedestrian", 0.2, -0.5, 1, 0.6),

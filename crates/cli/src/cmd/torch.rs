@@ -1,8 +1,8 @@
-//! The detector commands (`train`, `detect`, `adapt`, `autolabel`, `demo`, `bench nn`) run in a
-//! separate executable, `pi3det-torch` (crates/pipelines), the only one that links libtorch: `pi3det` itself never
-//! loads it, so the other commands start in milliseconds. `pi3det` lists these commands in its
-//! help and hands each over with its arguments verbatim (on Unix by `exec`, so the exit status,
-//! signals and terminal are the child's own).
+//! The detector commands ([`FORWARDED`]) run in a separate executable, `pi3det-torch`
+//! (crates/pipelines), the only one that links libtorch: `pi3det` itself never loads it, so the
+//! other commands start in milliseconds. `pi3det` lists these commands in its help and hands
+//! each over with its arguments verbatim (on Unix by `exec`, so the exit status, signals and
+//! terminal are the child's own).
 //!
 //! `pi3det-torch` is looked for in `$PI3DET_TORCH` (a path), then beside this executable, then
 //! on `PATH`.
@@ -43,25 +43,63 @@ fn command_words(args: &[OsString], n: usize) -> Vec<&str> {
     words
 }
 
+/// The commands `pi3det-torch` runs, as the words that name them. The one list: dispatch, help
+/// and the error for a missing `pi3det-torch` use it, and a test checks it against both
+/// executables' help.
+pub const FORWARDED: &[&str] = &[
+    "train",
+    "detect",
+    "adapt",
+    "autolabel",
+    "run",
+    "export",
+    "demo",
+    "benchmark",
+    "bench nn",
+    "bench live",
+    "bench sparse",
+];
+
+/// The forwarded command that `words` (a command line's command words) start with, if any.
+fn forwarded_in(words: &[&str]) -> Option<&'static str> {
+    FORWARDED.iter().copied().find(|c| {
+        let mut names = c.split(' ');
+        let n = c.split(' ').count();
+        words.len() >= n && names.by_ref().zip(words).all(|(a, b)| a == *b)
+    })
+}
+
+/// The forwarded command `args` (without the program name) run, if any.
+pub fn forwarded(args: &[OsString]) -> Option<&'static str> {
+    forwarded_in(&command_words(args, 2))
+}
+
 /// Whether `args` (without the program name) ask for `help` of a detector command, e.g.
 /// `pi3det help train` or `pi3det --threads 2 help bench nn`: that help lives in pi3det-torch.
 pub fn is_help_for_forwarded(args: &[OsString]) -> bool {
-    matches!(
-        command_words(args, 3).as_slice(),
-        ["help", "train" | "detect" | "adapt" | "autolabel" | "demo" | "benchmark" | "run" | "export", ..]
-            | ["help", "bench", "nn" | "live" | "sparse"]
-    )
+    match command_words(args, 3).as_slice() {
+        ["help", rest @ ..] => forwarded_in(rest).is_some(),
+        _ => false,
+    }
 }
 
 /// Whether `args` run a command that trains a network (`train`, `adapt`, `demo`, `benchmark`,
 /// `bench nn`). For these `pi3det` sets `OMP_WAIT_POLICY=ACTIVE` unless the user set it: a
 /// backward pass is many short OpenMP regions, and workers that spin between them instead of
-/// sleeping made a training step 14 % faster on two cores (Pi3DET-Net preset, 120 steps: 25 s
-/// against 29 s, three runs each); inference did not change (1–2 %), and a live `run` would
-/// burn a core while it waits for frames, so the others keep libgomp's default. It has to be
-/// set before libtorch loads, hence here and not in `pi3det-torch`.
+/// sleeping make a training step faster; inference gains nothing, and a live `run` would burn a
+/// core while it waits for frames, so the others keep libgomp's default
+/// (results/2026-12-05-omp-wait-policy.md). It has to be set before libtorch loads, hence here
+/// and not in `pi3det-torch`.
 pub fn trains(args: &[OsString]) -> bool {
     matches!(command_words(args, 2).as_slice(), ["train" | "adapt" | "demo" | "benchmark", ..] | ["bench", "nn"])
+}
+
+/// Whether `args` run the detector beside other work on a robot computer (`run`, `bench live`).
+/// For these `pi3det` sets `OMP_WAIT_POLICY=PASSIVE` unless the user set it: a spinning wait
+/// takes a core from the neighbours, and a thread a neighbour has preempted stalls every layer
+/// its siblings spin at (results/2026-12-06-live-threads.md).
+pub fn runs_live(args: &[OsString]) -> bool {
+    matches!(forwarded(args), Some("run" | "bench live"))
 }
 
 fn is_file(p: &Path) -> bool {
@@ -88,9 +126,10 @@ pub fn locate() -> anyhow::Result<PathBuf> {
         }
     }
     bail!(
-        "the detector commands (train, detect, adapt, autolabel, run, export, demo, bench nn, bench live) run in the {EXE} executable, which is neither beside {} nor on PATH; \
+        "the detector commands ({}) run in the {EXE} executable, which is neither beside {} nor on PATH; \
          build it with `cargo build --release -p pi3det-pipelines` (scripts/demo builds both binaries; it needs libtorch, see scripts/setup-torch), \
          or set PI3DET_TORCH to its path",
+        FORWARDED.join(", "),
         exe.as_deref().map_or_else(|| "this executable".into(), |e| e.display().to_string())
     )
 }
@@ -101,8 +140,12 @@ pub fn run(args: &[OsString]) -> anyhow::Result<std::process::ExitCode> {
     let exe = locate()?;
     let mut cmd = std::process::Command::new(&exe);
     cmd.args(args);
-    if trains(args) && std::env::var_os("OMP_WAIT_POLICY").is_none() {
-        cmd.env("OMP_WAIT_POLICY", "ACTIVE");
+    if std::env::var_os("OMP_WAIT_POLICY").is_none() {
+        if trains(args) {
+            cmd.env("OMP_WAIT_POLICY", "ACTIVE");
+        } else if runs_live(args) {
+            cmd.env("OMP_WAIT_POLICY", "PASSIVE");
+        }
     }
     #[cfg(unix)]
     {
@@ -137,6 +180,20 @@ mod tests {
     }
 
     #[test]
+    fn forwarded_commands() {
+        assert_eq!(forwarded(&v(&["--threads", "2", "bench", "live", "--load", "1"])), Some("bench live"));
+        assert_eq!(forwarded(&v(&["train", "--config", "c.toml"])), Some("train"));
+        assert_eq!(forwarded(&v(&["bench", "sim"])), None);
+        assert_eq!(forwarded(&v(&["bench"])), None);
+        assert_eq!(forwarded(&v(&["info", "train"])), None, "only the leading words name the command");
+        assert_eq!(forwarded(&v(&["--help"])), None);
+        // Every training command is a forwarded one.
+        for t in [&["train"][..], &["adapt"], &["demo"], &["benchmark"], &["bench", "nn"]] {
+            assert!(trains(&v(t)) && forwarded(&v(t)).is_some(), "{t:?}");
+        }
+    }
+
+    #[test]
     fn training_commands() {
         assert!(trains(&v(&["train", "--config", "c.toml"])));
         assert!(trains(&v(&["--threads", "2", "demo"])));
@@ -145,5 +202,7 @@ mod tests {
         assert!(!trains(&v(&["run", "--ckpt", "m.safetensors"])));
         assert!(!trains(&v(&["detect"])));
         assert!(!trains(&v(&["help", "train"])));
+        assert!(runs_live(&v(&["run", "--ckpt", "m.safetensors"])) && runs_live(&v(&["bench", "live"])));
+        assert!(!runs_live(&v(&["detect"])) && !runs_live(&v(&["bench", "nn"])));
     }
 }

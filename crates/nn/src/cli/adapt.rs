@@ -51,9 +51,12 @@ pub struct AdaptArgs {
     pub pa_epochs: Option<usize>,
     #[arg(long)]
     pub ka_epochs: Option<usize>,
-    /// Also evaluate the PA model through VPP and score pseudo-labels made without VPP (two
-    /// extra inference passes that show what VPP does).
-    #[arg(long, default_value_t = true, action = clap::ArgAction::Set, value_name = "BOOL")]
+    /// Leave out the VPP diagnostics: evaluating the PA model through VPP and scoring
+    /// pseudo-labels made without VPP (two extra inference passes that show what VPP does).
+    #[arg(long, overrides_with = "vpp_diagnostics")]
+    pub no_vpp_diagnostics: bool,
+    /// The diagnostics on (the default).
+    #[arg(long, hide = true, overrides_with = "no_vpp_diagnostics")]
     pub vpp_diagnostics: bool,
     /// Override the seed of both stages.
     #[arg(long)]
@@ -179,7 +182,7 @@ pub fn run_adapt(args: &AdaptArgs) -> Result<AdaptReport> {
         resume: args.resume,
         stop_after: args.stop_after,
         source_only: None,
-        vpp_diagnostics: args.vpp_diagnostics,
+        vpp_diagnostics: !args.no_vpp_diagnostics,
     };
     let report = adapt_with_progress(opts, false)?;
     println!("{}", pipeline::markdown(&report, &det_cfg));

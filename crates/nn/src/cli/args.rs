@@ -54,6 +54,62 @@ impl DeviceArgs {
     }
 }
 
+/// A `--x` / `--no-x` pair: `Some(true)`, `Some(false)`, or `None` when neither was given (clap's
+/// `overrides_with` keeps only the last of the two).
+pub fn on_off(on: bool, off: bool) -> Option<bool> {
+    match (on, off) {
+        (true, _) => Some(true),
+        (_, true) => Some(false),
+        _ => None,
+    }
+}
+
+/// Switches that earlier releases took as `--x true|false` (or `--x=BOOL`), now `--x` / `--no-x`.
+pub const SWITCHES: &[&str] = &["per-class-nms", "ground-fit", "bev-fit", "upright-check", "tta", "vpp-diagnostics"];
+
+/// Rewrites the old spellings of [`SWITCHES`] (`--tta false`, `--tta=true`) into the new ones
+/// (`--no-tta`, `--tta`), so command lines written for earlier releases keep working; everything
+/// else is left as it is.
+pub fn rewrite_old_switches(args: Vec<std::ffi::OsString>) -> Vec<std::ffi::OsString> {
+    let mut out = Vec::with_capacity(args.len());
+    let mut it = args.into_iter().peekable();
+    while let Some(a) = it.next() {
+        let text = a.to_str().unwrap_or("");
+        if text == "--" {
+            out.push(a);
+            out.extend(it);
+            break;
+        }
+        let (name, inline) = match text.strip_prefix("--").map(|t| t.split_once('=')) {
+            Some(Some((n, v))) => (n, Some(v.to_string())),
+            Some(None) => (&text[2..], None),
+            None => ("", None),
+        };
+        if SWITCHES.contains(&name) {
+            let value = match inline {
+                Some(v) => Some(v),
+                None => it
+                    .peek()
+                    .and_then(|v| v.to_str())
+                    .filter(|v| matches!(*v, "true" | "false"))
+                    .map(String::from)
+                    .inspect(|_| {
+                        it.next();
+                    }),
+            };
+            match value.as_deref() {
+                Some("false") => out.push(format!("--no-{name}").into()),
+                Some("true") | None => out.push(format!("--{name}").into()),
+                // Anything else is passed on for clap to refuse.
+                Some(v) => out.push(format!("--{name}={v}").into()),
+            }
+            continue;
+        }
+        out.push(a);
+    }
+    out
+}
+
 pub fn parse_platform(s: &str) -> std::result::Result<Platform, String> {
     match Platform::parse(s) {
         Platform::Unknown => Err(format!("unknown platform {s:?} (vehicle, drone, quadruped)")),
@@ -100,4 +156,33 @@ pub fn open_subset(path: &Path, split: Option<&str>, platform: Option<Platform>,
         s = s.platform(p)?;
     }
     Ok(s.take_spread(max))
+}
+
+#[cfg(test)]
+mod switch_tests {
+    use super::*;
+
+    fn v(a: &[&str]) -> Vec<std::ffi::OsString> {
+        a.iter().map(Into::into).collect()
+    }
+
+    #[test]
+    fn old_switch_spellings_are_rewritten() {
+        assert_eq!(
+            rewrite_old_switches(v(&["detect", "--tta", "false", "--bev-fit=true", "--upright-check", "--out", "o"])),
+            v(&["detect", "--no-tta", "--bev-fit", "--upright-check", "--out", "o"])
+        );
+        assert_eq!(
+            rewrite_old_switches(v(&["adapt", "--vpp-diagnostics", "false"])),
+            v(&["adapt", "--no-vpp-diagnostics"])
+        );
+        // Lists (autolabel's views) and words after `--` stay as they are.
+        assert_eq!(
+            rewrite_old_switches(v(&["autolabel", "--tta", "flip,rot"])),
+            v(&["autolabel", "--tta", "flip,rot"])
+        );
+        assert_eq!(rewrite_old_switches(v(&["x", "--", "--tta", "false"])), v(&["x", "--", "--tta", "false"]));
+        assert_eq!(on_off(false, false), None);
+        assert_eq!(on_off(false, true), Some(false));
+    }
 }

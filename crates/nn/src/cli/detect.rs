@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use indicatif::ProgressBar;
 
-use super::args::{DataArgs, DeviceArgs};
+use super::args::{on_off, DataArgs, DeviceArgs};
 use super::{progress_style, refuse_existing};
 use crate::checkpoint;
 use crate::detect::{self, Latency};
@@ -32,27 +32,38 @@ pub struct DetectArgs {
     /// Override the checkpoint's NMS IoU threshold.
     #[arg(long)]
     pub nms_iou: Option<f64>,
-    /// Override the checkpoint's NMS mode: per class (true) or over all classes at once (false).
-    #[arg(long, value_name = "BOOL")]
-    pub per_class_nms: Option<bool>,
+    /// Override the checkpoint's NMS mode: per class (`--per-class-nms`) or over all classes at
+    /// once (`--no-per-class-nms`).
+    #[arg(long, overrides_with = "no_per_class_nms")]
+    pub per_class_nms: bool,
+    #[arg(long, overrides_with = "per_class_nms")]
+    pub no_per_class_nms: bool,
     /// Fit each box's bottom to the local ground and its top to the highest point inside it after
-    /// NMS (`[post.ground_fit]` with its defaults), or turn the checkpoint's fit off (false).
-    #[arg(long, value_name = "BOOL")]
-    pub ground_fit: Option<bool>,
+    /// NMS (`[post.ground_fit]` with its defaults; `--no-ground-fit` turns the checkpoint's off).
+    #[arg(long, overrides_with = "no_ground_fit")]
+    pub ground_fit: bool,
+    #[arg(long, overrides_with = "ground_fit")]
+    pub no_ground_fit: bool,
     /// Fit each long box's heading and BEV centre to the points on its faces after NMS
-    /// (`[post.bev_fit]` with its defaults), or turn the checkpoint's fit off (false).
-    #[arg(long, value_name = "BOOL")]
-    pub bev_fit: Option<bool>,
+    /// (`[post.bev_fit]` with its defaults; `--no-bev-fit` turns the checkpoint's off).
+    #[arg(long, overrides_with = "no_bev_fit")]
+    pub bev_fit: bool,
+    #[arg(long, overrides_with = "bev_fit")]
+    pub no_bev_fit: bool,
     /// Lower the scores of pedestrian detections that do not stand up to a person's height or
-    /// have points right above them, after the fits (`[post.upright_check]` with its defaults),
-    /// or turn the checkpoint's check off (false).
-    #[arg(long, value_name = "BOOL")]
-    pub upright_check: Option<bool>,
+    /// have points right above them, after the fits (`[post.upright_check]` with its defaults;
+    /// `--no-upright-check` turns the checkpoint's check off).
+    #[arg(long, overrides_with = "no_upright_check")]
+    pub upright_check: bool,
+    #[arg(long, overrides_with = "upright_check")]
+    pub no_upright_check: bool,
     /// Test-time augmentation: the frame also mirrored and turned, the views fused
-    /// (`[post.tta]` with its defaults), or turn the checkpoint's off (false): 6× less network
-    /// time per frame.
-    #[arg(long, value_name = "BOOL")]
-    pub tta: Option<bool>,
+    /// (`[post.tta]` with its defaults; `--no-tta` turns the checkpoint's off, for a sixth of
+    /// the network time per frame).
+    #[arg(long, overrides_with = "no_tta")]
+    pub tta: bool,
+    #[arg(long, overrides_with = "tta")]
+    pub no_tta: bool,
     /// A TOML file whose `[post]` table (a detector config's, or a Pi3DET-Net preset's
     /// `[detector.post]`) replaces the checkpoint's post-processing (thresholds, NMS, fits, TTA);
     /// the flags above apply on top of it.
@@ -104,13 +115,13 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     if let Some(z) = args.shift_z {
         ck.config.shift_z = z;
     }
-    if let Some(b) = args.per_class_nms {
+    if let Some(b) = on_off(args.per_class_nms, args.no_per_class_nms) {
         ck.config.post.per_class_nms = b;
     }
-    switch(&mut ck.config.post.ground_fit, args.ground_fit);
-    switch(&mut ck.config.post.bev_fit, args.bev_fit);
-    switch(&mut ck.config.post.upright_check, args.upright_check);
-    switch(&mut ck.config.post.tta, args.tta);
+    switch(&mut ck.config.post.ground_fit, on_off(args.ground_fit, args.no_ground_fit));
+    switch(&mut ck.config.post.bev_fit, on_off(args.bev_fit, args.no_bev_fit));
+    switch(&mut ck.config.post.upright_check, on_off(args.upright_check, args.no_upright_check));
+    switch(&mut ck.config.post.tta, on_off(args.tta, args.no_tta));
     args.device.apply_precision(&mut ck.config);
     ck.config.validate()?;
     let mut det = crate::Detector::new(&ck.config, device)?;

@@ -26,7 +26,7 @@ pub mod detect;
 pub mod train;
 
 pub use adapt::{adapt_with_progress, run_adapt, AdaptArgs};
-pub use args::{open_subset, DataArgs, DeviceArgs};
+pub use args::{open_subset, rewrite_old_switches, DataArgs, DeviceArgs};
 pub use bench::{run_bench_nn, BenchNnArgs};
 pub use bench_sparse::{run_bench_sparse, BenchSparseArgs};
 pub use detect::{format_latency, run_detect, DetectArgs};

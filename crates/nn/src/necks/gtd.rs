@@ -14,18 +14,20 @@
 //! Two safeguards the public module does not need (it has no rotation head): the pooled
 //! descriptor is layer-normalised and the regressor's last layer starts at zero, so `L_rot`
 //! starts at the cost of predicting no tilt instead of at whatever an unnormalised max of a
-//! 128×128 map gives (measured: λ_rot·L_rot averaged 3.6 over a first epoch, more than every
-//! detection term together, and the vehicle model's Car BEV@0.7 fell from 56 to 14); and the
-//! residual is scaled by a learnt γ that starts at 0 (ReZero), so Pre-Adaptation starts from
-//! the plain detector and lets the offset in as it helps. `L_rot` trains the GTD branch, not the
-//! backbone: the descriptor is computed again from the detached map (measured with the gradient
-//! reaching the backbone, even after the two safeguards: the vehicle model's Car BEV@0.7 24
-//! against 56 without GTD, on 120 validation frames), on the windows around each channel's
-//! maximum only, which gives the values and weight gradients of a full second pass.
+//! 128×128 map gives (without them `L_rot` outweighed every detection term together over a first
+//! epoch and the vehicle model lost most of its Car AP); and the residual is scaled by a learnt γ
+//! that starts at 0 (ReZero), so Pre-Adaptation starts from the plain detector and lets the
+//! offset in as it helps. `L_rot` trains the GTD branch, not the backbone: the descriptor is
+//! computed again from the detached map (with the gradient reaching the backbone the vehicle
+//! model still lost much of its Car AP, even after the two safeguards), on the windows around
+//! each channel's maximum only, which gives the values and weight gradients of a full second pass.
 //!
 //! `inner_channels` (not in the public module) runs the branch on `c < C` channels between a 1×1
 //! reduction and a 1×1 expansion: on the CPU preset's 192-channel, 128×128 map the C→C 5×5
-//! convolution alone costs about 20 times the whole 2D backbone (measured: an epoch 3× slower).
+//! convolution alone costs about 20 times the whole 2D backbone.
+//!
+//! Measured: results/2026-12-05-pi3det-net-ablation-seed0.md (the safeguards, the detached map,
+//! `inner_channels`) and results/2026-12-06-training-step.md (the windowed second pass).
 
 use serde::{Deserialize, Serialize};
 use tch::nn::{self, Module};
@@ -162,7 +164,8 @@ impl Gtd {
     /// only the k_max × k_max window of the reduced map around it, so the branch runs again on
     /// those `B·c` windows of the detached map rather than on the whole map: the values and
     /// weight gradients of a second full pass (amax's gradient goes to the argmax; ties share
-    /// the same window) at a small fraction of its cost (a full pass was ~5 % of a training step).
+    /// the same window) at a small fraction of its cost. Measured:
+    /// results/2026-12-06-training-step.md.
     fn detached_descriptor(&self, bev: &Tensor, d: &Tensor) -> Tensor {
         let (b, c_in, h, w) = bev.size4().expect("bev is [B, C, H, W]");
         let dev = bev.device();
