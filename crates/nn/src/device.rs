@@ -103,10 +103,16 @@ pub fn default_threads(configured: usize) -> usize {
     if configured > 0 {
         return configured;
     }
-    if let Some(n) = std::env::var("PI3DET_TORCH_THREADS").ok().and_then(|v| v.parse::<usize>().ok()).filter(|&n| n > 0)
-    {
-        return n;
-    }
+    env_threads().unwrap_or_else(cores)
+}
+
+/// `$PI3DET_TORCH_THREADS`, when it holds a positive number.
+pub fn env_threads() -> Option<usize> {
+    std::env::var("PI3DET_TORCH_THREADS").ok().and_then(|v| v.parse::<usize>().ok()).filter(|&n| n > 0)
+}
+
+/// The cores this process may use.
+pub fn cores() -> usize {
     std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
 }
 

@@ -126,8 +126,7 @@ pub struct StageMs {
 /// small; more threads wait more at each layer's end and take cores from the neighbours).
 /// `PI3DET_TORCH_THREADS` overrides it.
 pub fn live_threads() -> usize {
-    let env = std::env::var("PI3DET_TORCH_THREADS").ok().and_then(|v| v.parse::<usize>().ok()).filter(|&n| n > 0);
-    env.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1).min(4))
+    pi3det_nn::device::env_threads().unwrap_or_else(|| pi3det_nn::device::cores().min(4))
 }
 
 /// Network passes on a simulated sweep before a run (see the module doc).

@@ -62,11 +62,7 @@ pub const FORWARDED: &[&str] = &[
 
 /// The forwarded command that `words` (a command line's command words) start with, if any.
 fn forwarded_in(words: &[&str]) -> Option<&'static str> {
-    FORWARDED.iter().copied().find(|c| {
-        let mut names = c.split(' ');
-        let n = c.split(' ').count();
-        words.len() >= n && names.by_ref().zip(words).all(|(a, b)| a == *b)
-    })
+    FORWARDED.iter().copied().find(|c| words.starts_with(&c.split(' ').collect::<Vec<_>>()))
 }
 
 /// The forwarded command `args` (without the program name) run, if any.

@@ -70,7 +70,9 @@ impl GuardConfig {
         if ok {
             Ok(())
         } else {
-            Err(NnError::Config(format!("guard: invalid settings {self:?}")))
+            Err(NnError::Config(format!(
+                "guard: need warn_positives_per_frame ≥ 0, score in [0, 1), match_iou in (0, 1] and min_retention in [0, 1] (got {self:?})"
+            )))
         }
     }
 }
@@ -165,7 +167,9 @@ pub struct Comparison {
 }
 
 fn signal(frames: &[FrameDetections], score: f64) -> ModelSignal {
-    let s: Vec<f64> = frames.iter().flat_map(|f| &f.objects).filter_map(|o| o.score).filter(|&s| s >= score).collect();
+    // A box without a score counts as certain, as in `matches`.
+    let s: Vec<f64> =
+        frames.iter().flat_map(|f| &f.objects).map(|o| o.score.unwrap_or(1.0)).filter(|&s| s >= score).collect();
     ModelSignal {
         detections: s.len(),
         per_frame: s.len() as f64 / frames.len().max(1) as f64,
@@ -174,8 +178,10 @@ fn signal(frames: &[FrameDetections], score: f64) -> ModelSignal {
 }
 
 /// Matches of `a`'s boxes scoring ≥ `a_score` to `b`'s scoring ≥ `b_score`, one-to-one, greedy
-/// by `a`'s score, same class, BEV IoU ≥ `iou`: (matched, `a`'s boxes considered).
-fn matches(a: &FrameDetections, b: &FrameDetections, a_score: f64, b_score: f64, iou: f64) -> (usize, usize) {
+/// by `a`'s score, same class, BEV IoU ≥ `iou` (BEV, not the 3-D IoU of
+/// `pi3det_autolabel::quality`: a model's z and height on a levelled frame are what adaptation
+/// changes most, and a box found in a wrong z is still found).
+fn matches(a: &FrameDetections, b: &FrameDetections, a_score: f64, b_score: f64, iou: f64) -> usize {
     let score = |o: &pi3det_data::Object| o.score.unwrap_or(1.0);
     let mut av: Vec<_> = a.objects.iter().filter(|o| score(o) >= a_score).collect();
     av.sort_by(|x, y| score(y).total_cmp(&score(x)));
@@ -195,7 +201,7 @@ fn matches(a: &FrameDetections, b: &FrameDetections, a_score: f64, b_score: f64,
             n += 1;
         }
     }
-    (n, av.len())
+    n
 }
 
 /// Compares the adapted model's detections with the PA model's (through VPP) on the same
@@ -215,15 +221,13 @@ pub fn compare(
             adapted.len()
         )));
     }
-    let (mut kept, mut pa_n, mut both, mut ad_n) = (0, 0, 0, 0);
+    let (pa_signal, adapted_signal) = (signal(pa_vpp, score), signal(adapted, score));
+    let (mut kept, mut both) = (0, 0);
     for (p, a) in pa_vpp.iter().zip(adapted) {
-        let (k, n) = matches(p, a, score, 0.0, cfg.match_iou);
-        kept += k;
-        pa_n += n;
-        let (m, _) = matches(p, a, score, score, cfg.match_iou);
-        both += m;
-        ad_n += a.objects.iter().filter(|o| o.score.unwrap_or(1.0) >= score).count();
+        kept += matches(p, a, score, 0.0, cfg.match_iou);
+        both += matches(p, a, score, score, cfg.match_iou);
     }
+    let (pa_n, ad_n) = (pa_signal.detections, adapted_signal.detections);
     let retained = if pa_n == 0 { 1.0 } else { kept as f64 / pa_n as f64 };
     let agreement_f1 = if pa_n + ad_n == 0 { 1.0 } else { 2.0 * both as f64 / (pa_n + ad_n) as f64 };
     let (ship, reason) = if pa_n == 0 {
@@ -254,8 +258,8 @@ pub fn compare(
     Ok(Comparison {
         frames: pa_vpp.len(),
         score,
-        pa_vpp: signal(pa_vpp, score),
-        adapted: signal(adapted, score),
+        pa_vpp: pa_signal,
+        adapted: adapted_signal,
         retained,
         agreement_f1,
         ship,
