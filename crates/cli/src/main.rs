@@ -76,6 +76,8 @@ enum BenchCommand {
     Live(Forwarded),
     /// The sparse 3-D backbone (forward + backward) against the same network as dense conv3d.
     Sparse(Forwarded),
+    /// A checkpoint on every real labelled set (KITTI, Argoverse 1, nuScenes), no per-set flags: one table.
+    Real(Forwarded),
 }
 
 fn main() -> std::process::ExitCode {
@@ -118,7 +120,9 @@ fn main() -> std::process::ExitCode {
         | Command::Benchmark(_)
         | Command::Run(_)
         | Command::Export(_)
-        | Command::Bench(BenchCommand::Nn(_) | BenchCommand::Live(_) | BenchCommand::Sparse(_)) => {
+        | Command::Bench(
+            BenchCommand::Nn(_) | BenchCommand::Live(_) | BenchCommand::Sparse(_) | BenchCommand::Real(_),
+        ) => {
             unreachable!("handed to pi3det-torch above")
         }
     };

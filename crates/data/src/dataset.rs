@@ -31,11 +31,14 @@ pub trait Dataset: Send + Sync {
         use rayon::prelude::*;
         (0..self.len()).into_par_iter().map(|i| self.info(i)).collect()
     }
-    /// The frame with its points (non-finite points dropped, see [`read_bin`]).
+    /// The frame with its points (non-finite points dropped, see [`read_bin`]), intensity brought
+    /// from the format's scale to [0, 1] ([`PointCloud::normalize_intensity`]; findings reported
+    /// once per folder).
     fn load(&self, index: usize) -> Result<Frame, DataError> {
         let info = self.info(index)?;
         let channels: Vec<&str> = info.point_channels.iter().map(String::as_str).collect();
-        let points = read_bin(&info.points_path, &channels)?.cloud;
+        let mut points = read_bin(&info.points_path, &channels)?.cloud;
+        crate::points::report_intensity(&info.points_path, points.normalize_intensity(info.intensity_scale));
         Ok(Frame { info, points })
     }
 }

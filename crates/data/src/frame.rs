@@ -7,7 +7,7 @@ use pi3det_geometry::kitti::KittiCalib;
 use pi3det_geometry::{Box3d, Pose};
 use serde::{Deserialize, Serialize};
 
-use crate::points::PointCloud;
+use crate::points::{IntensityScale, PointCloud};
 
 /// The platform carrying the sensor.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, Default)]
@@ -149,6 +149,8 @@ pub struct FrameInfo {
     /// The point file and its float32 channels (x, y, z, intensity, extras…).
     pub points_path: PathBuf,
     pub point_channels: Vec<String>,
+    /// The scale the point file stores intensity in; loading brings it to [0, 1].
+    pub intensity_scale: IntensityScale,
 }
 
 impl FrameInfo {
@@ -165,6 +167,7 @@ impl FrameInfo {
             cameras: Vec::new(),
             points_path,
             point_channels: PointCloud::XYZI.iter().map(|s| s.to_string()).collect(),
+            intensity_scale: IntensityScale::Unit,
         }
     }
 }

@@ -16,4 +16,4 @@ pub mod summary;
 pub use dataset::{open, Dataset, Format, FrameMap, Mapped};
 pub use error::DataError;
 pub use frame::{Calib, CameraInfo, Frame, FrameInfo, KittiFields, Object, Platform};
-pub use points::{read_bin, write_bin, PointCloud};
+pub use points::{read_bin, write_bin, IntensityCheck, IntensityScale, PointCloud};

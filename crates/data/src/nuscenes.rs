@@ -12,6 +12,7 @@ use crate::error::DataError;
 use crate::fields::Record;
 use crate::frame::{CameraInfo, FrameInfo, Object, Platform};
 use crate::pickle::{self, Value};
+use crate::points::IntensityScale;
 
 pub struct NuscenesDataset {
     root: PathBuf,
@@ -76,6 +77,8 @@ fn parse_sample(
     let extra = ["ring", "time", "extra"];
     info.point_channels.extend(extra.iter().take(n_feats.saturating_sub(4)).map(|s| s.to_string()));
     info.platform = Platform::Vehicle;
+    // nuScenes stores the sensor's 8-bit intensity, and mmdet3d's infos pass it through.
+    info.intensity_scale = IntensityScale::Byte;
     info.timestamp_s = rec.opt_f64(s, "timestamp")?;
     if let (Some(l2e), Some(e2g)) = (lidar.get("lidar2ego"), s.get("ego2global")) {
         let ego_from_lidar = Pose::try_from_matrix(&rec.square::<4>(l2e, "lidar2ego")?).map_err(|e| rec.err(e))?;

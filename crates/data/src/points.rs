@@ -100,6 +100,109 @@ impl PointCloud {
     }
 }
 
+/// The scale a format stores intensity in. Readers declare theirs (a `FrameInfo` field) and
+/// [`crate::Dataset::load`] brings every frame to [`IntensityScale::Unit`], the scale of the Pi3DET
+/// layout, KITTI, the sequence reader, the live sources and the simulator, so one model sees one
+/// scale whatever the dataset.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum IntensityScale {
+    /// [0, 1]: KITTI reflectance, the Pi3DET layout (Ouster reflectivity / 255), the simulator.
+    #[default]
+    Unit,
+    /// [0, 255]: nuScenes (and mmdet3d's nuScenes infos, which pass it through), 8-bit drivers.
+    Byte,
+}
+
+impl IntensityScale {
+    pub fn max(self) -> f32 {
+        match self {
+            IntensityScale::Unit => 1.0,
+            IntensityScale::Byte => 255.0,
+        }
+    }
+}
+
+/// What a frame's intensity channel turned out to be once brought to [0, 1].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum IntensityCheck {
+    /// Varied values within the scale.
+    Valid,
+    /// No intensity channel.
+    Absent,
+    /// Every point has the same value: a converter that lost intensity (Argoverse's KITTI-format
+    /// converter writes 1.0). The value carries no information about the surface.
+    Constant(f32),
+    /// Values outside [0, 255] before scaling (or negative): no known convention; clamped to [0, 1].
+    OutOfScale { min: f32, max: f32 },
+    /// Stored on the 0–255 scale though the format declares [0, 1] (a converter that kept a
+    /// sensor's 8-bit values): divided by 255.
+    ByteInUnitFormat,
+}
+
+impl PointCloud {
+    /// Brings the intensity channel from `scale` to [0, 1] and says what it found. Frames declared
+    /// [0, 1] whose values reach above 1 but stay within 255 are taken as 8-bit and divided too;
+    /// values outside every known scale are clamped. One pass over the points.
+    pub fn normalize_intensity(&mut self, scale: IntensityScale) -> IntensityCheck {
+        let s = self.stride();
+        if s < 4 || self.is_empty() {
+            return IntensityCheck::Absent;
+        }
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for p in self.data.chunks_exact(s) {
+            if p[3].is_finite() {
+                lo = lo.min(p[3]);
+                hi = hi.max(p[3]);
+            }
+        }
+        let mut check = IntensityCheck::Valid;
+        let mut divide = match scale {
+            IntensityScale::Unit => 1.0,
+            IntensityScale::Byte => 255.0,
+        };
+        if !(lo.is_finite() && lo >= 0.0 && hi <= 255.0) {
+            check = IntensityCheck::OutOfScale { min: lo, max: hi };
+        } else if scale == IntensityScale::Unit && hi > 1.0 {
+            check = IntensityCheck::ByteInUnitFormat;
+            divide = 255.0;
+        }
+        if divide != 1.0 || matches!(check, IntensityCheck::OutOfScale { .. }) {
+            for p in self.data.chunks_exact_mut(s) {
+                let v = if p[3].is_finite() { p[3] / divide } else { 0.0 };
+                p[3] = v.clamp(0.0, 1.0);
+            }
+        }
+        if check == IntensityCheck::Valid && lo == hi && self.len() > 1 {
+            check = IntensityCheck::Constant(lo / divide);
+        }
+        check
+    }
+}
+
+/// Reports an intensity finding once per folder of point files, so a dataset of thousands of
+/// frames written by one converter gives one line, not one per frame (or per point).
+pub fn report_intensity(path: &Path, check: IntensityCheck) {
+    use std::collections::HashSet;
+    use std::sync::Mutex;
+    static SEEN: Mutex<Option<HashSet<(std::path::PathBuf, u8)>>> = Mutex::new(None);
+    let (kind, what) = match check {
+        IntensityCheck::Valid | IntensityCheck::Absent => return,
+        IntensityCheck::Constant(v) => (0, format!("every point has intensity {v}: the intensity was lost on the way (treated as missing by the detectors)")),
+        IntensityCheck::OutOfScale { min, max } => {
+            (1, format!("intensity spans {min}..{max}, outside every known scale ([0, 1], [0, 255]); clamped to [0, 1]"))
+        }
+        IntensityCheck::ByteInUnitFormat => {
+            (2, "intensity reaches above 1 in a format that stores [0, 1]: taken as 8-bit (0–255) and divided by 255".to_string())
+        }
+    };
+    let folder = path.parent().unwrap_or(path).to_path_buf();
+    let mut seen = SEEN.lock().unwrap_or_else(|e| e.into_inner());
+    if seen.get_or_insert_with(HashSet::new).insert((folder, kind)) {
+        tracing::warn!("{}: {what} (reported once for this folder)", path.display());
+    }
+}
+
 /// A `.bin` file read with a known stride, non-finite points dropped and counted.
 pub struct BinRead {
     pub cloud: PointCloud,
@@ -155,4 +258,42 @@ pub fn write_bin(path: &Path, cloud: &PointCloud, overwrite: bool) -> Result<(),
         bytes.extend_from_slice(&v.to_le_bytes());
     }
     crate::io::write_atomic(path, &bytes, overwrite)
+}
+
+#[cfg(test)]
+mod intensity_tests {
+    use super::*;
+
+    fn cloud(i: &[f32]) -> PointCloud {
+        PointCloud::from_xyzi(&i.iter().map(|&v| [1.0, 2.0, 3.0, v]).collect::<Vec<_>>())
+    }
+
+    fn intensities(c: &PointCloud) -> Vec<f32> {
+        (0..c.len()).map(|k| c.intensity(k).unwrap()).collect()
+    }
+
+    #[test]
+    fn scales_are_brought_to_zero_to_one() {
+        let mut c = cloud(&[0.0, 0.5, 1.0]);
+        assert_eq!(c.normalize_intensity(IntensityScale::Unit), IntensityCheck::Valid);
+        assert_eq!(intensities(&c), [0.0, 0.5, 1.0]);
+        let mut c = cloud(&[0.0, 51.0, 255.0]);
+        assert_eq!(c.normalize_intensity(IntensityScale::Byte), IntensityCheck::Valid);
+        assert_eq!(intensities(&c), [0.0, 0.2, 1.0]);
+        // 8-bit values in a [0, 1] format: divided, and said so.
+        let mut c = cloud(&[0.0, 51.0, 255.0]);
+        assert_eq!(c.normalize_intensity(IntensityScale::Unit), IntensityCheck::ByteInUnitFormat);
+        assert_eq!(intensities(&c), [0.0, 0.2, 1.0]);
+    }
+
+    #[test]
+    fn lost_and_impossible_intensities_are_named() {
+        let mut c = cloud(&[1.0, 1.0, 1.0]);
+        assert_eq!(c.normalize_intensity(IntensityScale::Unit), IntensityCheck::Constant(1.0));
+        let mut c = cloud(&[-3.0, 100.0, 4000.0]);
+        assert_eq!(c.normalize_intensity(IntensityScale::Byte), IntensityCheck::OutOfScale { min: -3.0, max: 4000.0 });
+        assert!(intensities(&c).iter().all(|v| (0.0..=1.0).contains(v)));
+        let mut xyz = PointCloud::from_vec(vec![1.0, 2.0, 3.0], vec!["x".into(), "y".into(), "z".into()]).unwrap();
+        assert_eq!(xyz.normalize_intensity(IntensityScale::Unit), IntensityCheck::Absent);
+    }
 }

@@ -74,3 +74,39 @@ fn nuscenes_points_in_boxes_match_num_lidar_pts() {
     let pose = frame.info.world_from_lidar.expect("pose from ego2global · lidar2ego");
     assert!(pose.translation.vector.norm() > 100.0);
 }
+
+/// Every reader brings intensity to [0, 1]: KITTI stores reflectance in [0, 1] already, nuScenes
+/// its 8-bit intensity (divided by 255), and Argoverse's converter lost it (1.0 everywhere),
+/// which the load reports as constant.
+#[test]
+fn each_reader_delivers_intensity_in_zero_to_one() {
+    use pi3det_data::{IntensityCheck, IntensityScale};
+    let range = |f: &pi3det_data::Frame| {
+        let i: Vec<f32> = (0..f.points.len()).map(|k| f.points.intensity(k).unwrap()).collect();
+        let lo = i.iter().copied().fold(f32::INFINITY, f32::min);
+        let hi = i.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        (lo, hi, i.iter().map(|&v| v as f64).sum::<f64>() / i.len() as f64)
+    };
+    let kitti = open(&shared_data("kitti/training")).unwrap();
+    assert_eq!(kitti.info(0).unwrap().intensity_scale, IntensityScale::Unit);
+    let (lo, hi, _) = range(&kitti.load(0).unwrap());
+    assert!(lo >= 0.0 && hi <= 1.0 && hi > 0.9, "{lo} {hi}");
+
+    let nus = open(&shared_data("nuscenes_demo/n015-2018-07-24-11-22-45+0800.pkl")).unwrap();
+    assert_eq!(nus.info(0).unwrap().intensity_scale, IntensityScale::Byte);
+    let frame = nus.load(0).unwrap();
+    let (lo, hi, mean) = range(&frame);
+    // The file holds 0..=255 (mean 19.85); loaded it is that over 255.
+    assert!(lo == 0.0 && hi == 1.0 && (mean - 19.851 / 255.0).abs() < 1e-3, "{lo} {hi} {mean}");
+    let raw = pi3det_data::read_bin(&frame.info.points_path, &["x", "y", "z", "intensity", "ring"]).unwrap().cloud;
+    for k in (0..raw.len()).step_by(997) {
+        assert_eq!(frame.points.point(k)[3], raw.point(k)[3] / 255.0);
+        assert_eq!(&frame.points.point(k)[..3], &raw.point(k)[..3]);
+        assert_eq!(frame.points.point(k)[4], raw.point(k)[4], "the ring channel is left alone");
+    }
+
+    let argo = open(&shared_data("argoverse1/training")).unwrap();
+    let f = argo.load(0).unwrap();
+    let mut points = pi3det_data::read_bin(&f.info.points_path, &["x", "y", "z", "intensity"]).unwrap().cloud;
+    assert_eq!(points.normalize_intensity(IntensityScale::Unit), IntensityCheck::Constant(1.0));
+}

@@ -219,6 +219,21 @@ pub struct DetectorConfig {
     pub loss_weights: BTreeMap<String, f64>,
     pub post: PostConfig,
     pub train: TrainConfig,
+    /// What the training frames looked like, recorded by training (absent from older checkpoints
+    /// and from configs written by hand): inference levels each frame to this sensor height by
+    /// default and stands in for a frame's lost intensity with this mean.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub trained_on: Option<TrainedOn>,
+}
+
+/// The training frames' sensor height above the ground and mean intensity ([`DetectorConfig::trained_on`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainedOn {
+    /// Median height of the sensor above the ground it sees, over training frames (m).
+    pub sensor_height_m: Option<f64>,
+    /// Mean intensity of the training points, on the [0, 1] scale every reader delivers.
+    pub intensity_mean: Option<f64>,
 }
 
 impl Default for DetectorConfig {
@@ -242,6 +257,7 @@ impl Default for DetectorConfig {
             loss_weights: BTreeMap::new(),
             post: PostConfig::default(),
             train: TrainConfig::default(),
+            trained_on: None,
         }
     }
 }
@@ -266,6 +282,12 @@ impl DetectorConfig {
 
     pub fn to_toml(&self) -> String {
         toml::to_string(self).unwrap_or_default()
+    }
+
+    /// The config as TOML without what training recorded about its frames ([`TrainedOn`]): two
+    /// configs with the same settings compare equal whether or not one was trained.
+    pub fn settings_toml(&self) -> String {
+        Self { trained_on: None, ..self.clone() }.to_toml()
     }
 
     /// Class index of a dataset class name (after aliases), if detected.
@@ -300,6 +322,14 @@ impl DetectorConfig {
         }
         if !self.shift_z.is_finite() {
             return Err(NnError::Config("shift_z must be finite".into()));
+        }
+        if let Some(t) = &self.trained_on {
+            if t.sensor_height_m.is_some_and(|h| !(h.is_finite() && h > 0.0)) {
+                return Err(NnError::Config("trained_on.sensor_height_m must be a positive number of metres".into()));
+            }
+            if t.intensity_mean.is_some_and(|i| !(0.0..=1.0).contains(&i)) {
+                return Err(NnError::Config("trained_on.intensity_mean must be within [0, 1]".into()));
+            }
         }
         let grid = Grid::new(&self.pillars)?;
         self.backbone.validate()?;

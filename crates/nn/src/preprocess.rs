@@ -32,6 +32,54 @@ impl FrameTransform for ShiftZ {
     }
 }
 
+/// How inference brings a frame to the height the detector was trained at.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Level {
+    /// Level each frame from its own ground to the sensor height recorded in the checkpoint
+    /// ([`crate::config::TrainedOn`]); the config's `shift_z` alone when none was recorded.
+    Trained,
+    /// Level each frame to this sensor height (m).
+    Height(f64),
+    /// The config's `shift_z` only (the frame as it is).
+    Off,
+}
+
+impl Level {
+    /// The sensor height frames are levelled to under `cfg`, if any.
+    pub fn height_m(self, cfg: &DetectorConfig) -> Option<f64> {
+        match self {
+            Level::Trained => cfg.trained_on.and_then(|t| t.sensor_height_m),
+            Level::Height(h) => Some(h),
+            Level::Off => None,
+        }
+    }
+
+    /// The Virtual Platform Pose levelling frames to [`Level::height_m`] (none when this does not
+    /// level); its counts say how many frames had no ground.
+    pub fn transform(self, cfg: &DetectorConfig) -> Result<Option<Arc<crate::adapt::VirtualPlatformPose>>> {
+        let Some(h) = self.height_m(cfg) else { return Ok(None) };
+        let v = crate::adapt::VppConfig { source_height_m: Some(h), ..Default::default() };
+        v.validate()?;
+        Ok(Some(Arc::new(crate::adapt::VirtualPlatformPose::new(&v, cfg.shift_z, h))))
+    }
+
+    /// One line saying what this does under `cfg`, for the log.
+    pub fn describe(self, cfg: &DetectorConfig) -> String {
+        match (self, self.height_m(cfg)) {
+            (Level::Off, _) => format!("frames not levelled (z shift {} m)", cfg.shift_z),
+            (Level::Trained, None) => format!(
+                "the checkpoint records no training sensor height: frames not levelled (z shift {} m; --vpp-height M levels them)",
+                cfg.shift_z
+            ),
+            (Level::Trained, Some(h)) => format!(
+                "each frame levelled from its ground to the training sensor height {h:.2} m (--no-level: as it is)"
+            ),
+            (Level::Height(_), Some(h)) => format!("each frame levelled from its ground to {h:.2} m"),
+            (Level::Height(_), None) => unreachable!("a height always levels"),
+        }
+    }
+}
+
 /// Network input of a batch: pillars (or voxels) of all frames.
 pub struct Inputs {
     /// `[ΣP, M, 10]` decorated points (voxels: `[ΣV, 1, 4]` point means).
@@ -164,6 +212,20 @@ impl Preprocessor {
     }
 }
 
+/// A frame whose points all have one intensity carries none (a converter lost it, a driver left
+/// it out): the network, which learnt from real intensities, gets the training frames' mean
+/// instead of an arbitrary constant such as the 1.0 Argoverse's converter writes.
+pub fn impute_lost_intensity(points: &mut [[f32; 4]], mean: f32) -> bool {
+    let Some(first) = points.first().map(|p| p[3]) else { return false };
+    if points.len() < 2 || points.iter().any(|p| p[3] != first) {
+        return false;
+    }
+    for p in points.iter_mut() {
+        p[3] = mean;
+    }
+    true
+}
+
 /// A frame moved into the detector's frame by `detector_from_lidar`, with the boxes of the
 /// detector's classes (at least `min_points` points; 0 keeps all). Non-finite points and
 /// degenerate boxes are left out. With `ignore_score_below`, objects scoring below it go to
@@ -199,6 +261,9 @@ pub fn frame_to_sample(
         if q.iter().all(|v| v.is_finite()) {
             points.push(q);
         }
+    }
+    if let Some(mean) = cfg.trained_on.and_then(|t| t.intensity_mean) {
+        impute_lost_intensity(&mut points, mean as f32);
     }
     let mut boxes = Vec::new();
     let mut classes = Vec::new();
@@ -248,6 +313,16 @@ pub fn to_lidar(b: &Box3d, detector_from_lidar: &Pose) -> Box3d {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn only_a_constant_intensity_is_replaced() {
+        let mut lost = vec![[0.0, 0.0, 0.0, 1.0], [1.0, 0.0, 0.0, 1.0]];
+        assert!(super::impute_lost_intensity(&mut lost, 0.3));
+        assert!(lost.iter().all(|p| p[3] == 0.3));
+        let mut real = vec![[0.0, 0.0, 0.0, 1.0], [1.0, 0.0, 0.0, 0.5]];
+        assert!(!super::impute_lost_intensity(&mut real, 0.3));
+        assert_eq!(real[1][3], 0.5);
+    }
+
     use super::*;
     use pi3det_data::{FrameInfo, Object, PointCloud};
 

@@ -159,12 +159,22 @@ pub fn evaluate_subset(
 }
 
 /// Trains; `on_event` sees progress.
-pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<TrainReport> {
-    let cfg = &opts.config;
-    cfg.validate()?;
+pub fn train(mut opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<TrainReport> {
+    opts.config.validate()?;
     if opts.train.is_empty() {
         return Err(NnError::Input("the training set has no frames".into()));
     }
+    if opts.config.trained_on.is_none() {
+        let resumed = match &opts.resume {
+            Some(path) => checkpoint::load(path)?.config.trained_on,
+            None => None,
+        };
+        opts.config.trained_on = Some(match resumed {
+            Some(t) => t,
+            None => trained_on(&opts.train, opts.frame_transform.is_some())?,
+        });
+    }
+    let cfg = &opts.config;
     std::fs::create_dir_all(&opts.out_dir).map_err(|e| NnError::io(&opts.out_dir, e))?;
     pi3det_data::io::write_atomic(&opts.out_dir.join("config.toml"), cfg.to_toml().as_bytes(), true)?;
     tch::manual_seed(cfg.train.seed as i64);
@@ -176,7 +186,8 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
     let mut state = TrainState { stage: opts.stage.clone(), ..Default::default() };
     if let Some(path) = &opts.resume {
         let ck = checkpoint::load(path)?;
-        if ck.config.to_toml() != cfg.to_toml() {
+        // A checkpoint written before training recorded its frames resumes too.
+        if ck.config.settings_toml() != cfg.settings_toml() {
             return Err(NnError::Input(format!(
                 "{}: was written with another config; resume with the checkpoint's config",
                 path.display()
@@ -361,4 +372,25 @@ pub fn train(opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Result<
     let json = serde_json::to_vec_pretty(&report).unwrap_or_default();
     pi3det_data::io::write_atomic(&opts.out_dir.join("train_report.json"), &json, true)?;
     Ok(report)
+}
+
+/// The training frames' sensor height (median over up to 32 frames spread over the set; `None`
+/// when training levels frames itself, e.g. `--vpp-height`, or no ground is found) and mean
+/// intensity, recorded in the checkpoint's config ([`crate::config::TrainedOn`]).
+pub fn trained_on(train: &Subset, levelled: bool) -> Result<crate::config::TrainedOn> {
+    let part = train.clone().take_spread(32);
+    let sums: Vec<(f64, usize)> = part
+        .indices
+        .par_iter()
+        .map(|&i| {
+            let f = part.dataset.load(i)?;
+            let n = f.points.len();
+            let sum: f64 = (0..n).filter_map(|k| f.points.intensity(k)).map(f64::from).sum();
+            Ok((sum, if f.points.stride() > 3 { n } else { 0 }))
+        })
+        .collect::<Result<_>>()?;
+    let (sum, n) = sums.iter().fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let sensor_height_m =
+        if levelled { None } else { crate::adapt::vpp::median_sensor_height(train, 32).ok().map(|(h, _)| h) };
+    Ok(crate::config::TrainedOn { sensor_height_m, intensity_mean: (n > 0).then(|| (sum / n as f64).clamp(0.0, 1.0)) })
 }

@@ -16,7 +16,7 @@ use pi3det_autolabel::LabelSet;
 use pi3det_data::{DataError, Dataset, FrameInfo, FrameMap, Mapped, PointCloud};
 use pi3det_nn::cli::{DataArgs, DeviceArgs};
 use pi3det_nn::data_loader::Subset;
-use pi3det_nn::preprocess::Preprocessor;
+use pi3det_nn::preprocess::{Level, Preprocessor};
 use pi3det_nn::{checkpoint, detect, Detector};
 use serde::Serialize;
 
@@ -36,9 +36,10 @@ pub struct AutolabelArgs {
     pub tta_views: Vec<TtaKind>,
     #[arg(long, default_value_t = 15.0)]
     pub tta_rot_deg: f64,
-    /// Level frames through Virtual Platform Pose to this sensor height (as `pi3det detect`).
-    #[arg(long, value_name = "M")]
-    pub vpp_height: Option<f64>,
+    /// Levelling of each frame (as `pi3det detect`: by default to each checkpoint's training
+    /// sensor height).
+    #[command(flatten)]
+    pub level: pi3det_nn::cli::args::LevelArgs,
     /// Fusion parameters (TOML, `pi3det fuse --print-config`).
     #[arg(long)]
     pub fusion_config: Option<PathBuf>,
@@ -151,7 +152,8 @@ pub struct EnsembleOptions<'a> {
     pub infos: &'a [FrameInfo],
     pub checkpoints: &'a [PathBuf],
     pub views: &'a [View],
-    pub vpp_height: Option<f64>,
+    /// How each checkpoint's frames are levelled ([`Level::Trained`]: to its own training height).
+    pub level: Level,
     /// The frames' `shift_z` into the detectors' frame instead of their configs' (without VPP).
     pub shift_z: Option<f64>,
     pub fusion: FusionConfig,
@@ -223,7 +225,7 @@ pub fn ensemble(o: &EnsembleOptions<'_>, on_input: &mut dyn FnMut(&str, &LabelSe
                 cfg.shift_z = z;
             }
             let mut prep = Preprocessor::new(&cfg)?;
-            if let Some(h) = o.vpp_height {
+            if let Some(h) = o.level.height_m(&ck.config) {
                 prep = prep.with_frame_transform(pi3det_nn::cli::detect::vpp(&ck.config, h)?);
             }
             let frames = detect_in_view(&det, prep, o.subset, *view, o.batch_size)?;
@@ -287,7 +289,7 @@ pub fn run_autolabel(args: &AutolabelArgs) -> Result<()> {
             infos: &infos,
             checkpoints: &args.ckpt,
             views: &views,
-            vpp_height: args.vpp_height,
+            level: args.level.level(),
             shift_z: None,
             fusion: fusion_cfg.clone(),
             min_members: args.min_members,

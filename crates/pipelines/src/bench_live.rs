@@ -169,7 +169,7 @@ fn one(args: &BenchLiveArgs, vpp: bool, dir: &std::path::Path) -> Result<RunSumm
         ckpt: args.ckpt.clone(),
         source: String::new(),
         sinks: Vec::new(),
-        vpp_height: vpp.then_some(args.vpp_height),
+        level: pi3det_nn::cli::args::LevelArgs { vpp_height: vpp.then_some(args.vpp_height), no_level: !vpp },
         queue: args.queue,
         max_frames: None,
         score_threshold: None,

@@ -92,6 +92,11 @@ pub struct DemoArgs {
     /// seed (in OUT/seed_S/), then print the per-seed table and the mean ± std.
     #[arg(long, value_delimiter = ',', value_name = "S,S,...")]
     pub seeds: Vec<u64>,
+    /// Simulator settings for the training splits (TOML, `pi3det simulate --print-config`), e.g.
+    /// `[randomise] sensors = [...]` to train on several beam layouts; the validation splits keep
+    /// the default simulator, so their table stays comparable.
+    #[arg(long, value_name = "TOML")]
+    pub sim_config: Option<PathBuf>,
     /// Reuse data and checkpoint already in the working folder (only if made with these settings).
     #[arg(long)]
     pub reuse: bool,
@@ -334,7 +339,14 @@ fn run_seed(
     let plans = args.plans();
     // Each split's marker records what was simulated into it, so --reuse never mixes data of other
     // settings; the checkpoint's records the training split's.
-    let train_text = format!("{plans:?} seed {seed}\n");
+    let train_sim = match &args.sim_config {
+        Some(p) => pi3det_sim::SimConfig::load(p).with_context(|| format!("--sim-config {}", p.display()))?,
+        None => pi3det_sim::SimConfig::default(),
+    };
+    let train_text = match &args.sim_config {
+        Some(_) => format!("{plans:?} seed {seed}\n{}", train_sim.to_toml_string()),
+        None => format!("{plans:?} seed {seed}\n"),
+    };
     let val_text = format!("{plans:?} val seed {} stratified\n", args.val_seed);
     let (mut reused_data, mut reused_train_data) = (true, true);
     for (split, text, split_seed, stratify) in
@@ -349,7 +361,8 @@ fn run_seed(
         let t = Instant::now();
         // No marker while the data is being replaced: an interrupted run leaves none behind.
         let _ = std::fs::remove_file(&marker);
-        simulate_split(&data, &plans, split, split_seed, stratify)?;
+        let sim = if split == "train" { train_sim.clone() } else { pi3det_sim::SimConfig::default() };
+        simulate_split(&sim, &data, &plans, split, split_seed, stratify)?;
         pi3det_data::io::write_atomic(&marker, text.as_bytes(), true)?;
         timings.simulate_s += t.elapsed().as_secs_f64();
     }
@@ -362,7 +375,7 @@ fn run_seed(
     // may differ (post-processing leaves the weights alone: the current one is used).
     let same_training = |mut c: DetectorConfig| {
         c.post = cfg_train.post.clone();
-        c.to_toml() == cfg_train.to_toml()
+        c.settings_toml() == cfg_train.settings_toml()
     };
     let reused_checkpoint = reused_train_data
         && std::fs::read_to_string(&trained_marker).is_ok_and(|t| t == train_text)
@@ -465,7 +478,14 @@ fn run_seed(
 }
 
 /// Simulates one split of every plan into `data/<platform>/<split>` (replacing what is there).
-fn simulate_split(data: &Path, plans: &[PlatformPlan], split: &str, seed: u64, stratify: bool) -> Result<()> {
+fn simulate_split(
+    cfg: &pi3det_sim::SimConfig,
+    data: &Path,
+    plans: &[PlatformPlan],
+    split: &str,
+    seed: u64,
+    stratify: bool,
+) -> Result<()> {
     // Sequences of each plan that fall in this split.
     let in_split: Vec<u64> =
         plans.iter().map(|p| (0..p.sequences).filter(|&i| p.split_of(i) == split).count() as u64).collect();
@@ -489,9 +509,8 @@ fn simulate_split(data: &Path, plans: &[PlatformPlan], split: &str, seed: u64, s
     let bar = ProgressBar::new(total).with_style(progress_style(&format!(
         "simulate {split} [{{bar:30}}] {{pos}}/{{len}} frames {{elapsed}}<{{eta}}"
     )));
-    let cfg = pi3det_sim::SimConfig::default();
     for plan in plans {
-        pi3det_sim::export_split(&cfg, plan, split, &opts, &mut |_, _| bar.inc(1)).context("simulation")?;
+        pi3det_sim::export_split(cfg, plan, split, &opts, &mut |_, _| bar.inc(1)).context("simulation")?;
     }
     bar.finish_and_clear();
     Ok(())

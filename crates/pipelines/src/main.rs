@@ -53,6 +53,8 @@ enum BenchCommand {
     Live(pi3det_pipelines::bench_live::BenchLiveArgs),
     /// The sparse 3-D backbone (forward + backward) against the same network as dense conv3d.
     Sparse(nn::BenchSparseArgs),
+    /// A checkpoint on every real labelled set (KITTI, Argoverse 1, nuScenes), no per-set flags: one table.
+    Real(pi3det_pipelines::bench_real::BenchRealArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -79,6 +81,7 @@ fn main() -> std::process::ExitCode {
         Command::Demo(args) => pi3det_pipelines::demo::run_demo(args).map(|_| ()),
         Command::Benchmark(args) => pi3det_pipelines::benchmark::run(args).map(|_| ()),
         Command::Bench(BenchCommand::Live(args)) => pi3det_pipelines::bench_live::run(args),
+        Command::Bench(BenchCommand::Real(args)) => pi3det_pipelines::bench_real::run(args),
         Command::Bench(BenchCommand::Nn(args)) => nn::run_bench_nn(args, &mut |n| {
             pi3det_pipelines::frames::vehicle_frames(n).map_err(|e| NnError::Input(format!("simulation: {e}")))
         })

@@ -59,11 +59,10 @@ pub struct RunArgs {
     /// (Foxglove); repeat for several. None: detections are counted and timed only.
     #[arg(long = "sink")]
     pub sinks: Vec<String>,
-    /// Level every sweep through Virtual Platform Pose to a virtual sensor this many metres above
-    /// the ground, estimated per sweep (a tilting drone or quadruped); boxes come back in the
-    /// sensor frame.
-    #[arg(long, value_name = "M")]
-    pub vpp_height: Option<f64>,
+    /// Levelling of each sweep from its own ground (a tilting drone or quadruped, a sensor
+    /// mounted higher or lower than in training); boxes come back in the sensor frame.
+    #[command(flatten)]
+    pub level: pi3det_nn::cli::args::LevelArgs,
     /// Sweeps waiting for inference at most; a live source drops the oldest beyond this.
     #[arg(long, default_value_t = 2)]
     pub queue: usize,
@@ -154,7 +153,9 @@ impl LiveDetector {
             Net::Script(m) => m.det.cfg().clone(),
         };
         let mut prep = Preprocessor::new(&cfg)?;
-        if let Some(h) = args.vpp_height {
+        let level = args.level.level();
+        eprintln!("{}", level.describe(&cfg));
+        if let Some(h) = level.height_m(&cfg) {
             prep = prep.with_frame_transform(pi3det_nn::cli::detect::vpp(&cfg, h)?);
         }
         Ok(Self { net, prep: Arc::new(prep) })

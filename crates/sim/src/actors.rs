@@ -55,6 +55,10 @@ pub struct ActorConfig {
     pub bus: VehicleType,
     pub paint_reflectivity: [f64; 2],
     pub glass_reflectivity: f64,
+    /// Share of beams a car's windows return (the cabin above the belt line of sedans and SUVs):
+    /// real windows let most of a LiDAR's beam through or reflect it away, so a real car shows a
+    /// hole where its glass is. 1.0 keeps the cabin solid.
+    pub glass_return_probability: f64,
     pub tyre_reflectivity: f64,
     pub vehicle_speed_mps: [f64; 2],
     pub pedestrian_height_m: [f64; 2],
@@ -79,6 +83,7 @@ impl Default for ActorConfig {
             bus: VehicleType { share: 0.1, length_m: [10.5, 13.0], width_m: [2.5, 2.55], height_m: [3.0, 3.3] },
             paint_reflectivity: [0.05, 0.9],
             glass_reflectivity: 0.08,
+            glass_return_probability: 1.0,
             tyre_reflectivity: 0.04,
             vehicle_speed_mps: [4.0, 13.0],
             pedestrian_height_m: [1.5, 1.95],
@@ -96,9 +101,29 @@ impl Default for ActorConfig {
 /// centre).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Part {
-    Box { center: [f64; 3], size: [f64; 3], reflectivity: f64 },
-    Cylinder { uv: [f64; 2], radius: f64, z: [f64; 2], reflectivity: f64 },
-    Sphere { center: [f64; 3], radius: f64, reflectivity: f64 },
+    Box {
+        center: [f64; 3],
+        size: [f64; 3],
+        reflectivity: f64,
+    },
+    /// A box of glass: returns only a share of the beams that hit it.
+    Glass {
+        center: [f64; 3],
+        size: [f64; 3],
+        reflectivity: f64,
+        return_probability: f64,
+    },
+    Cylinder {
+        uv: [f64; 2],
+        radius: f64,
+        z: [f64; 2],
+        reflectivity: f64,
+    },
+    Sphere {
+        center: [f64; 3],
+        radius: f64,
+        reflectivity: f64,
+    },
 }
 
 /// How an actor moves.
@@ -186,6 +211,14 @@ impl Actor {
                         reflectivity,
                     )
                 }
+                Part::Glass { center, size, reflectivity, return_probability } => {
+                    let p = place([center[0], center[1]]);
+                    Primitive::new(
+                        Shape::Box(UprightBox::new([p[0], p[1], ground_z + center[2]], size, heading_rad)),
+                        reflectivity,
+                    )
+                    .with_return_probability(return_probability)
+                }
                 Part::Cylinder { uv, radius, z, reflectivity } => {
                     let cyl = Cylinder { xy: place(uv), radius, z0: ground_z + z[0], z1: ground_z + z[1] };
                     Primitive::new(Shape::Cylinder(cyl), reflectivity)
@@ -241,7 +274,16 @@ pub fn vehicle<R: Rng + ?Sized>(cfg: &ActorConfig, rng: &mut R, allow_bus: bool,
             parts.push(body_box(-0.5 * l, 0.5 * l, clearance, belt, w, paint));
             let cabin_len = l * if kind == 0 { 0.48 } else { 0.62 };
             let centre = -l * if kind == 0 { 0.05 } else { 0.08 };
-            parts.push(body_box(centre - 0.5 * cabin_len, centre + 0.5 * cabin_len, belt, h, w - 0.14, glass_mix));
+            let cabin = body_box(centre - 0.5 * cabin_len, centre + 0.5 * cabin_len, belt, h, w - 0.14, glass_mix);
+            parts.push(match cabin {
+                Part::Box { center, size, reflectivity } if cfg.glass_return_probability < 1.0 => Part::Glass {
+                    center,
+                    size,
+                    reflectivity,
+                    return_probability: cfg.glass_return_probability.clamp(0.0, 1.0),
+                },
+                other => other,
+            });
         }
         2 => {
             let hood = 1.0f64.min(0.25 * l);

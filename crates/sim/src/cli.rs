@@ -34,6 +34,10 @@ pub struct SensorArgs {
     /// Sensor preset (default: the config's sensor, an Ouster OS1-64 as on all Pi3DET platforms).
     #[arg(long, value_enum)]
     pub sensor: Option<SensorPreset>,
+    /// Domain randomisation: each sequence is recorded with one of these sensors, drawn from the
+    /// seed and the sequence's index (e.g. `--sensors os1-64,hdl-64,vlp-32c,nuscenes-32`).
+    #[arg(long, value_enum, value_delimiter = ',', conflicts_with = "sensor")]
+    pub sensors: Vec<SensorPreset>,
     /// Override the number of beams.
     #[arg(long)]
     pub beams: Option<u32>,
@@ -54,6 +58,9 @@ impl SensorArgs {
         };
         if let Some(preset) = self.sensor {
             cfg.sensor = preset.config();
+        }
+        if !self.sensors.is_empty() {
+            cfg.randomise.sensors = self.sensors.iter().map(|p| p.config().name).collect();
         }
         if let Some(b) = self.beams {
             cfg.sensor.beams = b;

@@ -33,10 +33,21 @@ impl Default for LabelConfig {
     }
 }
 
+/// Domain randomisation across sequences: what each sequence draws instead of the fixed setting.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RandomiseConfig {
+    /// Sensor presets (`SensorPreset::parse` names: `os1-64`, `hdl-64`, `vlp-32c`, …); each
+    /// sequence is recorded with one of them, drawn from the seed and its index. Empty: every
+    /// sequence uses `sensor`.
+    pub sensors: Vec<String>,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SimConfig {
     pub sensor: SensorConfig,
+    pub randomise: RandomiseConfig,
     pub scene: SceneConfig,
     pub actors: ActorConfig,
     pub labels: LabelConfig,
@@ -49,6 +60,7 @@ impl Default for SimConfig {
     fn default() -> Self {
         Self {
             sensor: SensorConfig::default(),
+            randomise: RandomiseConfig::default(),
             scene: SceneConfig::default(),
             actors: ActorConfig::default(),
             labels: LabelConfig::default(),
@@ -80,6 +92,10 @@ impl SimConfig {
 
     pub fn validate(&self) -> Result<(), SimError> {
         self.sensor.validate()?;
+        for name in &self.randomise.sensors {
+            crate::sensor::SensorPreset::parse(name)
+                .map_err(|e| SimError::invalid(format!("randomise.sensors: {e}")))?;
+        }
         self.scene.validate()?;
         self.vehicle.validate("vehicle")?;
         self.drone.validate("drone")?;
@@ -88,6 +104,24 @@ impl SimConfig {
     }
 
     /// Parses TOML holding only the values to change.
+    /// The configuration sequence `index` of a simulation seeded `seed` is rendered with: this one,
+    /// with the sensor drawn from `randomise.sensors` when it lists any (the same seed and index
+    /// always draw the same sensor, so splits stay reproducible).
+    pub fn for_sequence(&self, seed: u64, index: u32) -> Result<SimConfig, SimError> {
+        if self.randomise.sensors.is_empty() {
+            return Ok(self.clone());
+        }
+        // SplitMix64 of (seed, index): independent of the sequence's own random stream.
+        let mut z =
+            seed.wrapping_add(0x9E37_79B9_7F4A_7C15).wrapping_add(u64::from(index).wrapping_mul(0xBF58_476D_1CE4_E5B9));
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+        let name = &self.randomise.sensors[(z % self.randomise.sensors.len() as u64) as usize];
+        let preset = crate::sensor::SensorPreset::parse(name)?;
+        Ok(SimConfig { sensor: preset.config(), ..self.clone() })
+    }
+
     pub fn from_toml_str(text: &str) -> Result<Self, String> {
         let user: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
         let mut merged = toml::Table::try_from(Self::default()).map_err(|e| e.to_string())?;
@@ -143,5 +177,24 @@ mod tests {
         let text = SimConfig::default().to_toml_string();
         assert_eq!(SimConfig::from_toml_str(&text).unwrap(), SimConfig::default());
         SimConfig::default().validate().unwrap();
+    }
+
+    #[test]
+    fn randomised_sensors_are_drawn_per_sequence_and_reproducibly() {
+        let cfg = SimConfig {
+            randomise: RandomiseConfig { sensors: vec!["os1-64".into(), "hdl-64".into(), "vlp-32c".into()] },
+            ..SimConfig::default()
+        };
+        cfg.validate().unwrap();
+        let names: Vec<String> = (0..30).map(|i| cfg.for_sequence(7, i).unwrap().sensor.name).collect();
+        for n in ["os1-64", "hdl-64", "vlp-32c"] {
+            assert!(names.iter().filter(|m| *m == n).count() >= 4, "{n}: {names:?}");
+        }
+        let again: Vec<String> = (0..30).map(|i| cfg.for_sequence(7, i).unwrap().sensor.name).collect();
+        assert_eq!(names, again);
+        assert_eq!(SimConfig::default().for_sequence(7, 3).unwrap(), SimConfig::default());
+        let bad =
+            SimConfig { randomise: RandomiseConfig { sensors: vec!["lidar-9000".into()] }, ..SimConfig::default() };
+        assert!(bad.validate().unwrap_err().to_string().contains("randomise.sensors"));
     }
 }

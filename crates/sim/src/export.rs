@@ -170,13 +170,14 @@ pub fn export_split(
     };
     for (index, layout) in indices.into_iter().zip(layouts) {
         let spec = SequenceSpec { platform: plan.platform, index, frames: plan.frames, seed: opts.seed, layout };
-        let seq = Sequence::generate(cfg, spec)?;
+        let seq = Sequence::generate(&cfg.for_sequence(opts.seed, index)?, spec)?;
         tracing::info!(
-            "{}: {} frames, {} actors, {} static objects",
+            "{}: {} frames, {} actors, {} static objects, {}",
             seq.name,
             seq.len(),
             seq.actor_count(),
-            seq.scene.object_count()
+            seq.scene.object_count(),
+            seq.sensor().name
         );
         for f in 0..seq.len() {
             let sim = seq.render(f);

@@ -11,9 +11,15 @@ use crate::SimError;
 pub struct SensorConfig {
     pub name: String,
     pub beams: u32,
-    /// Beams are spread evenly from the lowest to the highest elevation.
+    /// Without an `elevation_table_deg`, beams are spread evenly from the lowest to the highest
+    /// elevation.
     pub elevation_min_deg: f64,
     pub elevation_max_deg: f64,
+    /// The sensor's own beam elevations, one per beam in any order (Velodyne lists them in firing
+    /// order): real sensors are not evenly spaced (the VLP-32C packs its beams around the horizon,
+    /// the HDL-64E has two blocks of different pitch), and the point density on a car at range
+    /// follows the spacing near the horizon, not the field of view.
+    pub elevation_table_deg: Option<Vec<f64>>,
     /// Columns (azimuth steps) per revolution: 512, 1024 or 2048 on an OS1.
     pub columns: u32,
     pub rate_hz: f64,
@@ -41,39 +47,83 @@ impl Default for SensorConfig {
     }
 }
 
-/// Named sensor presets.
+/// Named sensor presets: the beam layouts of the sensors the public datasets were recorded with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum SensorPreset {
-    /// Ouster OS1-64, as on every Pi3DET platform: 64 beams in [−22.5°, +22.5°].
+    /// Ouster OS1-64 (Rev 6/7), as on every Pi3DET platform: 64 beams evenly in [−22.5°, +22.5°].
     #[cfg_attr(feature = "cli", value(name = "os1-64"))]
     Os1_64,
-    /// nuScenes-like 32 beams in [−30°, +10°].
-    #[cfg_attr(feature = "cli", value(name = "nuscenes-32"))]
+    /// Ouster OS1-128 (Rev 6/7): 128 beams evenly in [−22.5°, +22.5°].
+    #[cfg_attr(feature = "cli", value(name = "os1-128"))]
+    Os1_128,
+    /// Velodyne HDL-32E, as on nuScenes' car: 32 beams from −30.67° to +10.67° in 4/3° steps, 20 Hz.
+    #[cfg_attr(feature = "cli", value(name = "nuscenes-32", alias = "hdl-32"))]
     Nuscenes32,
-    /// KITTI-like Velodyne HDL-64E: 64 beams in [−24.9°, +2°].
+    /// Velodyne HDL-64E (S2), as on KITTI's car: 32 beams from +2° to −8.33° in 1/3° steps above 32
+    /// from −8.83° to −24.33° in 1/2° steps.
     #[cfg_attr(feature = "cli", value(name = "hdl-64"))]
     Hdl64,
+    /// Velodyne VLP-32C (Ultra Puck), two of them on Argoverse 1's car: 32 beams in [−25°, +15°],
+    /// dense around the horizon.
+    #[cfg_attr(feature = "cli", value(name = "vlp-32c"))]
+    Vlp32c,
+    /// Velodyne VLP-16 (Puck): 16 beams from −15° to +15° in 2° steps.
+    #[cfg_attr(feature = "cli", value(name = "vlp-16"))]
+    Vlp16,
 }
 
 impl SensorPreset {
+    pub const ALL: [SensorPreset; 6] = [
+        SensorPreset::Os1_64,
+        SensorPreset::Os1_128,
+        SensorPreset::Nuscenes32,
+        SensorPreset::Hdl64,
+        SensorPreset::Vlp32c,
+        SensorPreset::Vlp16,
+    ];
+
     pub fn config(self) -> SensorConfig {
         match self {
             SensorPreset::Os1_64 => SensorConfig::os1_64(),
+            SensorPreset::Os1_128 => SensorConfig::os1_128(),
             SensorPreset::Nuscenes32 => SensorConfig::nuscenes_32(),
             SensorPreset::Hdl64 => SensorConfig::hdl_64(),
+            SensorPreset::Vlp32c => SensorConfig::vlp_32c(),
+            SensorPreset::Vlp16 => SensorConfig::vlp_16(),
         }
     }
 
     pub fn parse(s: &str) -> Result<Self, SimError> {
         match s.to_ascii_lowercase().replace('_', "-").as_str() {
             "os1-64" | "os1" | "ouster" | "pi3det" => Ok(Self::Os1_64),
-            "nuscenes-32" | "nuscenes" | "hdl-32" => Ok(Self::Nuscenes32),
-            "hdl-64" | "kitti" => Ok(Self::Hdl64),
-            other => Err(SimError::invalid(format!("unknown sensor preset {other:?} (os1-64, nuscenes-32, hdl-64)"))),
+            "os1-128" => Ok(Self::Os1_128),
+            "nuscenes-32" | "nuscenes" | "hdl-32" | "hdl-32e" => Ok(Self::Nuscenes32),
+            "hdl-64" | "hdl-64e" | "kitti" => Ok(Self::Hdl64),
+            "vlp-32c" | "vlp-32" | "argoverse" => Ok(Self::Vlp32c),
+            "vlp-16" => Ok(Self::Vlp16),
+            other => Err(SimError::invalid(format!(
+                "unknown sensor preset {other:?} (os1-64, os1-128, nuscenes-32, hdl-64, vlp-32c, vlp-16)"
+            ))),
         }
     }
+}
+
+/// Velodyne VLP-32C elevations in firing order (laser ID 0–31), from its user manual's table.
+const VLP_32C_ELEVATIONS_DEG: [f64; 32] = [
+    -25.0, -1.0, -1.667, -15.639, -11.31, 0.0, -0.667, -8.843, -7.254, 0.333, -0.333, -6.148, -5.333, 1.333, 0.667,
+    -4.0, -4.667, 1.667, 1.0, -3.667, -3.333, 3.333, 2.333, -2.667, -3.0, 7.0, 4.667, -2.333, -2.0, 15.0, 10.333,
+    -1.333,
+];
+
+/// The HDL-64E S2's nominal elevations: an upper block of 32 lasers from +2° down in 1/3° steps
+/// and a lower block of 32 from −8.83° down in 1/2° steps (each unit's calibration file shifts
+/// them by fractions of a degree).
+fn hdl_64e_elevations_deg() -> Vec<f64> {
+    let upper = (0..32).map(|i| 2.0 - i as f64 / 3.0);
+    let lower = (0..32).map(|i| -8.83 - 0.5 * i as f64);
+    upper.chain(lower).collect()
 }
 
 impl SensorConfig {
@@ -83,6 +133,7 @@ impl SensorConfig {
             beams: 64,
             elevation_min_deg: -22.5,
             elevation_max_deg: 22.5,
+            elevation_table_deg: None,
             columns: 1024,
             rate_hz: 10.0,
             range_min_m: 0.5,
@@ -97,12 +148,17 @@ impl SensorConfig {
         }
     }
 
+    pub fn os1_128() -> Self {
+        Self { name: "os1-128".into(), beams: 128, ..Self::os1_64() }
+    }
+
+    /// The HDL-32E: evenly spaced, so no table is needed.
     pub fn nuscenes_32() -> Self {
         Self {
             name: "nuscenes-32".into(),
             beams: 32,
-            elevation_min_deg: -30.0,
-            elevation_max_deg: 10.0,
+            elevation_min_deg: -30.67,
+            elevation_max_deg: 10.67,
             columns: 1084,
             rate_hz: 20.0,
             range_max_m: 100.0,
@@ -111,15 +167,46 @@ impl SensorConfig {
     }
 
     pub fn hdl_64() -> Self {
+        Self::from_table(
+            "hdl-64",
+            hdl_64e_elevations_deg(),
+            Self { columns: 2048, range_max_m: 120.0, ..Self::os1_64() },
+        )
+    }
+
+    pub fn vlp_32c() -> Self {
+        Self::from_table(
+            "vlp-32c",
+            VLP_32C_ELEVATIONS_DEG.to_vec(),
+            Self { columns: 1800, range_max_m: 200.0, ..Self::os1_64() },
+        )
+    }
+
+    pub fn vlp_16() -> Self {
+        Self::from_table(
+            "vlp-16",
+            (0..16).map(|i| -15.0 + 2.0 * i as f64).collect(),
+            Self { columns: 1800, range_max_m: 100.0, ..Self::os1_64() },
+        )
+    }
+
+    /// `base` with its beams from `table`; the field of view is the table's span.
+    fn from_table(name: &str, table: Vec<f64>, base: Self) -> Self {
+        let lo = table.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = table.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         Self {
-            name: "hdl-64".into(),
-            beams: 64,
-            elevation_min_deg: -24.9,
-            elevation_max_deg: 2.0,
-            columns: 2048,
-            range_max_m: 120.0,
-            ..Self::os1_64()
+            name: name.into(),
+            beams: table.len() as u32,
+            elevation_min_deg: lo,
+            elevation_max_deg: hi,
+            elevation_table_deg: Some(table),
+            ..base
         }
+    }
+
+    /// Every beam's elevation in degrees, highest first (the order of `beam_elevation_rad`).
+    pub fn elevations_deg(&self) -> Vec<f64> {
+        (0..self.beams).map(|b| self.beam_elevation_rad(b).to_degrees()).collect()
     }
 
     pub fn validate(&self) -> Result<(), SimError> {
@@ -139,6 +226,18 @@ impl SensorConfig {
         if self.rate_hz.is_nan() || self.rate_hz <= 0.0 {
             return bad("rate_hz must be positive");
         }
+        if let Some(t) = &self.elevation_table_deg {
+            if t.len() != self.beams as usize {
+                return Err(SimError::invalid(format!(
+                    "sensor: elevation_table_deg has {} entries for {} beams",
+                    t.len(),
+                    self.beams
+                )));
+            }
+            if !t.iter().all(|e| e.is_finite() && e.abs() < 90.0) {
+                return bad("elevation_table_deg: every elevation must be finite and within (−90°, 90°)");
+            }
+        }
         Ok(())
     }
 
@@ -146,8 +245,13 @@ impl SensorConfig {
         self.beams as usize * self.columns as usize
     }
 
-    /// Elevation of beam `b` (beam 0 is the highest, as Ouster numbers them).
+    /// Elevation of beam `b` (beam 0 is the highest, as Ouster numbers them; a table is sorted so).
     pub fn beam_elevation_rad(&self, b: u32) -> f64 {
+        if let Some(t) = &self.elevation_table_deg {
+            let mut sorted = t.clone();
+            sorted.sort_by(|a, b| b.total_cmp(a));
+            return sorted[b as usize].to_radians();
+        }
         let span = self.elevation_max_deg - self.elevation_min_deg;
         let frac = if self.beams > 1 { b as f64 / (self.beams - 1) as f64 } else { 0.5 };
         (self.elevation_max_deg - frac * span).to_radians()
@@ -210,7 +314,52 @@ mod tests {
             assert!(((v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) - 1.0).abs() < 1e-12);
         }
         assert!((SensorConfig::hdl_64().beam_elevation_rad(0).to_degrees() - 2.0).abs() < 1e-9);
-        assert!((SensorConfig::nuscenes_32().beam_elevation_rad(31).to_degrees() + 30.0).abs() < 1e-9);
+        assert!((SensorConfig::nuscenes_32().beam_elevation_rad(31).to_degrees() + 30.67).abs() < 1e-9);
+    }
+
+    /// Each preset's beams against the elevations its maker publishes (sorted, highest first).
+    #[test]
+    fn beam_tables_are_the_published_elevations() {
+        let close = |got: Vec<f64>, want: Vec<f64>, name: &str| {
+            assert_eq!(got.len(), want.len(), "{name}");
+            for (g, w) in got.iter().zip(&want) {
+                assert!((g - w).abs() < 2e-3, "{name}: {got:?} vs {want:?}");
+            }
+        };
+        let mut vlp32 = vec![
+            -25.0, -15.639, -11.31, -8.843, -7.254, -6.148, -5.333, -4.667, -4.0, -3.667, -3.333, -3.0, -2.667, -2.333,
+            -2.0, -1.667, -1.333, -1.0, -0.667, -0.333, 0.0, 0.333, 0.667, 1.0, 1.333, 1.667, 2.333, 3.333, 4.667, 7.0,
+            10.333, 15.0,
+        ];
+        vlp32.reverse();
+        close(SensorPreset::Vlp32c.config().elevations_deg(), vlp32, "vlp-32c");
+        let vlp16: Vec<f64> = (0..16).map(|i| 15.0 - 2.0 * i as f64).collect();
+        close(SensorPreset::Vlp16.config().elevations_deg(), vlp16, "vlp-16");
+        let hdl32: Vec<f64> = (0..32).map(|i| 10.67 - i as f64 * (41.34 / 31.0)).collect();
+        close(SensorPreset::Nuscenes32.config().elevations_deg(), hdl32, "hdl-32e");
+        let hdl64 = SensorPreset::Hdl64.config().elevations_deg();
+        assert_eq!(hdl64.len(), 64);
+        assert!((hdl64[0] - 2.0).abs() < 1e-9 && (hdl64[31] + 8.333).abs() < 1e-3);
+        assert!((hdl64[32] + 8.83).abs() < 1e-9 && (hdl64[63] + 24.33).abs() < 1e-9);
+        // Two pitches: 1/3° in the upper block, 1/2° in the lower.
+        assert!((hdl64[0] - hdl64[1] - 1.0 / 3.0).abs() < 1e-9 && (hdl64[40] - hdl64[41] - 0.5).abs() < 1e-9);
+        for (preset, beams) in [(SensorPreset::Os1_64, 64), (SensorPreset::Os1_128, 128)] {
+            let e = preset.config().elevations_deg();
+            assert_eq!(e.len(), beams);
+            assert!((e[0] - 22.5).abs() < 1e-9 && (e[beams - 1] + 22.5).abs() < 1e-9);
+        }
+        for p in SensorPreset::ALL {
+            p.config().validate().unwrap();
+            let name = p.config().name;
+            assert_eq!(SensorPreset::parse(&name).unwrap(), p, "{name}");
+        }
+    }
+
+    #[test]
+    fn a_table_of_the_wrong_length_is_refused() {
+        let mut s = SensorConfig::vlp_16();
+        s.beams = 17;
+        assert!(s.validate().unwrap_err().to_string().contains("16 entries for 17 beams"));
     }
 
     #[test]

@@ -58,6 +58,7 @@ pub const FORWARDED: &[&str] = &[
     "bench nn",
     "bench live",
     "bench sparse",
+    "bench real",
 ];
 
 /// The forwarded command that `words` (a command line's command words) start with, if any.

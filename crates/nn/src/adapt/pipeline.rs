@@ -417,7 +417,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
             let done = dir.join("final.safetensors");
             if done.exists() {
                 let ck = checkpoint::load(&done)?;
-                if ck.config.to_toml() != det_cfg.to_toml() {
+                if ck.config.settings_toml() != det_cfg.settings_toml() {
                     return Err(NnError::Checkpoint {
                         path: done,
                         message: "was trained with another detector config".into(),
@@ -449,6 +449,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         return Ok(report);
     }
     let (mut det, _) = checkpoint::load_detector_with_post(&pa_path, Some(&det_cfg.post), opts.device)?;
+    let pa_trained_on = det.cfg().trained_on;
     // The PA checkpoint's own config may differ in schedule and post-processing (`--pa-ckpt`);
     // adapt with ours.
     det.prep = Arc::new(Preprocessor::new(det_cfg)?);
@@ -478,6 +479,13 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         }
         None => None,
     };
+    // The adapted model works in the frame KA trains it in: levelled to the source's height when
+    // VPP is on, so inference levels to it by default ([`crate::preprocess::Level::Trained`]).
+    let recorded = crate::config::TrainedOn {
+        sensor_height_m: report.source_height_m.or(pa_trained_on.and_then(|t| t.sensor_height_m)),
+        intensity_mean: pa_trained_on.and_then(|t| t.intensity_mean),
+    };
+    det.prep = Arc::new(Preprocessor::new(&DetectorConfig { trained_on: Some(recorded), ..det_cfg.clone() })?);
     let target_transform: Arc<dyn FrameTransform> = match &vpp {
         Some(v) => v.clone(),
         None => plain.clone(),

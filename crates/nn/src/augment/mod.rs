@@ -7,6 +7,7 @@ pub mod gt_sampling;
 pub mod random_object_rotation;
 pub mod random_object_scaling;
 pub mod random_platform_jitter;
+pub mod sensor_randomisation;
 pub mod statistical_normalization;
 pub mod world_flip;
 pub mod world_rotation;
@@ -22,6 +23,7 @@ pub use gt_sampling::{GtDatabase, GtSampling, GtSamplingConfig};
 pub use random_object_rotation::{RandomObjectRotation, RandomObjectRotationConfig};
 pub use random_object_scaling::{RandomObjectScaling, RandomObjectScalingConfig};
 pub use random_platform_jitter::{RandomPlatformJitter, RandomPlatformJitterConfig};
+pub use sensor_randomisation::{SensorRandomisation, SensorRandomisationConfig};
 pub use statistical_normalization::{StatisticalNormalization, StatisticalNormalizationConfig};
 pub use world_flip::{WorldFlip, WorldFlipConfig};
 pub use world_rotation::{WorldRotation, WorldRotationConfig};
@@ -77,6 +79,7 @@ pub enum AugmentConfig {
     RandomPlatformJitter(RandomPlatformJitterConfig),
     RandomObjectScaling(RandomObjectScalingConfig),
     StatisticalNormalization(StatisticalNormalizationConfig),
+    SensorRandomisation(SensorRandomisationConfig),
 }
 
 impl AugmentConfig {
@@ -90,6 +93,7 @@ impl AugmentConfig {
             Self::RandomPlatformJitter(_) => "random_platform_jitter",
             Self::RandomObjectScaling(_) => "random_object_scaling",
             Self::StatisticalNormalization(_) => "statistical_normalization",
+            Self::SensorRandomisation(_) => "sensor_randomisation",
         }
     }
 
@@ -109,6 +113,7 @@ impl AugmentConfig {
             Self::RandomPlatformJitter(c) => c.max_deg.is_finite() && (0.0..90.0).contains(&c.max_deg),
             Self::RandomObjectScaling(c) => range_ok(&c.range) && c.range[0] > 0.0 && c.max_tries > 0,
             Self::StatisticalNormalization(c) => c.is_valid(),
+            Self::SensorRandomisation(c) => c.is_valid(),
         };
         if ok {
             Ok(())
@@ -132,6 +137,7 @@ impl AugmentConfig {
             Self::RandomPlatformJitter(c) => Box::new(RandomPlatformJitter(c.clone())),
             Self::RandomObjectScaling(c) => Box::new(RandomObjectScaling(c.clone())),
             Self::StatisticalNormalization(c) => Box::new(StatisticalNormalization::new(c, class_names)),
+            Self::SensorRandomisation(c) => Box::new(SensorRandomisation(c.clone())),
         })
     }
 }

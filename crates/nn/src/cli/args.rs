@@ -11,6 +11,30 @@ use crate::error::Result;
 use crate::precision::Precision;
 use crate::DetectorConfig;
 
+/// Levelling frames to the detector's training height (`detect`, `run`, `autolabel`).
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct LevelArgs {
+    /// Level every frame through Virtual Platform Pose to a virtual sensor this many metres above
+    /// the ground [default: the sensor height the checkpoint was trained at, when it records one];
+    /// detections go back to the sensor frame.
+    #[arg(long, value_name = "M", conflicts_with = "no_level")]
+    pub vpp_height: Option<f64>,
+    /// Do not level frames: only the config's z shift (frames already in the training frame).
+    #[arg(long)]
+    pub no_level: bool,
+}
+
+impl LevelArgs {
+    pub fn level(&self) -> crate::preprocess::Level {
+        use crate::preprocess::Level;
+        match (self.vpp_height, self.no_level) {
+            (Some(h), _) => Level::Height(h),
+            (None, true) => Level::Off,
+            (None, false) => Level::Trained,
+        }
+    }
+}
+
 /// Device and libtorch threads.
 #[derive(clap::Args, Debug, Clone)]
 pub struct DeviceArgs {

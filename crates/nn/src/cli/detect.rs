@@ -72,10 +72,8 @@ pub struct DetectArgs {
     /// Override the z shift applied to the points (e.g. to move a drone's ground to z ≈ 0).
     #[arg(long, allow_negative_numbers = true)]
     pub shift_z: Option<f64>,
-    /// Level every frame through Virtual Platform Pose to a virtual sensor this many metres above
-    /// the ground (the height the detector was trained at; detections go back to the sensor frame).
-    #[arg(long, value_name = "M")]
-    pub vpp_height: Option<f64>,
+    #[command(flatten)]
+    pub level: super::args::LevelArgs,
     /// Also evaluate against the data's ground truth (within the detector's range) and print it
     /// with the error breakdown (eval.json, breakdown.json).
     #[arg(long)]
@@ -92,9 +90,14 @@ pub fn vpp(
     cfg: &crate::DetectorConfig,
     height_m: f64,
 ) -> Result<std::sync::Arc<dyn crate::preprocess::FrameTransform>> {
-    let v = crate::adapt::VppConfig { source_height_m: Some(height_m), ..Default::default() };
-    v.validate()?;
-    Ok(std::sync::Arc::new(crate::adapt::VirtualPlatformPose::new(&v, cfg.shift_z, height_m)))
+    let v: std::sync::Arc<dyn crate::preprocess::FrameTransform> = vpp_at(cfg, height_m)?;
+    Ok(v)
+}
+
+/// [`vpp`], keeping the concrete type (its counts say how many frames had no ground).
+pub fn vpp_at(cfg: &crate::DetectorConfig, height_m: f64) -> Result<std::sync::Arc<crate::adapt::VirtualPlatformPose>> {
+    let level = crate::preprocess::Level::Height(height_m);
+    level.transform(cfg)?.ok_or_else(|| NnError::Input(format!("cannot level frames to {height_m} m")))
 }
 
 pub fn run_detect(args: &DetectArgs) -> Result<()> {
@@ -126,16 +129,24 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     ck.config.validate()?;
     let mut det = crate::Detector::new(&ck.config, device)?;
     ck.load_into(&mut det, &args.ckpt)?;
-    if let Some(h) = args.vpp_height {
-        det.prep = std::sync::Arc::new(
-            crate::preprocess::Preprocessor::new(&ck.config)?.with_frame_transform(vpp(&ck.config, h)?),
-        );
+    let level = args.level.level();
+    eprintln!("{}", level.describe(&ck.config));
+    let levelling = level.transform(&ck.config)?;
+    if let Some(v) = &levelling {
+        det.prep =
+            std::sync::Arc::new(crate::preprocess::Preprocessor::new(&ck.config)?.with_frame_transform(v.clone()));
     }
     let subset = args.data.subset("val", 0)?;
     let bar = ProgressBar::new(subset.len() as u64)
         .with_style(progress_style("detect [{bar:30}] {pos}/{len} {elapsed}<{eta}"));
     let (frames, lat) = detect::detect(&det, &subset, args.batch_size, &mut |done, _| bar.set_position(done as u64))?;
     bar.finish_and_clear();
+    if let Some(c) = levelling.map(|v| v.counts()).filter(|c| c.no_ground > 0) {
+        eprintln!(
+            "warning: no ground found in {} of {} frames: those kept the plain z shift ({} m)",
+            c.no_ground, c.frames, ck.config.shift_z
+        );
+    }
     std::fs::create_dir_all(&args.out).map_err(|e| NnError::io(&args.out, e))?;
     detect::write_jsonl(&args.out.join("detections.jsonl"), &frames)?;
     detect::write_result_pkl(&args.out.join("result.pkl"), &frames, &det.cfg().classes)?;

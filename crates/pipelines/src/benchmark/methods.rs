@@ -470,7 +470,7 @@ pub fn run_cell(ctx: &Ctx<'_>, cell: &Cell, dir: &Path, log: &mut Log) -> Result
                         infos: &target_infos,
                         checkpoints: &checkpoints,
                         views: &views,
-                        vpp_height: None,
+                        level: pi3det_nn::preprocess::Level::Off,
                         shift_z: Some(target_shift),
                         fusion,
                         min_members: None,
