@@ -68,6 +68,50 @@ pub fn options(classes: &[String], bev_range: Option<[f64; 4]>, score_threshold:
     }
 }
 
+/// KITTI annotates only what its left colour camera sees, and the field detects on the points in
+/// that view (OpenPCDet's `FOV_POINTS_ONLY`): a detection on a full KITTI scan whose centre falls
+/// outside the image would count as a false positive against objects nobody labelled. Unless some
+/// ground-truth box of the frames with KITTI calibration lies behind the camera or well beside its
+/// image (data in KITTI's format labelled beyond the view, as Argoverse's converter writes), drops
+/// the detections outside the image from those frames and returns how many.
+pub fn keep_camera_view(frames: &mut [FrameDetections]) -> usize {
+    fn in_view(info: &pi3det_data::FrameInfo, b: &pi3det_geometry::Box3d) -> Option<bool> {
+        let Some(pi3det_data::Calib::Kitti(calib)) = &info.calib else { return None };
+        let [w, h] = info.cameras.first().and_then(|c| c.image_size).unwrap_or([1242, 375]);
+        let rect = calib.lidar_to_rect([b.x, b.y, b.z]);
+        Some(
+            rect[2] > 0.0
+                && calib
+                    .rect_to_image(rect)
+                    .is_some_and(|[u, v]| (0.0..f64::from(w)).contains(&u) && (0.0..f64::from(h)).contains(&v)),
+        )
+    }
+    // Truncated objects at the image's edge have their centre just outside it; an object behind
+    // the camera or well beside the image is what says the labels go beyond the view.
+    let beyond = |info: &pi3det_data::FrameInfo, b: &pi3det_geometry::Box3d| {
+        let Some(pi3det_data::Calib::Kitti(calib)) = &info.calib else { return false };
+        let [w, h] = info.cameras.first().and_then(|c| c.image_size).unwrap_or([1242, 375]);
+        let (w, h) = (f64::from(w), f64::from(h));
+        let rect = calib.lidar_to_rect([b.x, b.y, b.z]);
+        rect[2] <= 0.0
+            || calib
+                .rect_to_image(rect)
+                .is_none_or(|[u, v]| !((-0.5 * w..1.5 * w).contains(&u) && (-0.5 * h..1.5 * h).contains(&v)))
+    };
+    let labels_all_around = frames.iter().any(|f| f.info.objects.iter().any(|o| beyond(&f.info, &o.box3d)));
+    if labels_all_around {
+        return 0;
+    }
+    let mut dropped = 0;
+    for f in frames.iter_mut() {
+        let before = f.objects.len();
+        let info = &f.info;
+        f.objects.retain(|o| in_view(info, &o.box3d) != Some(false));
+        dropped += before - f.objects.len();
+    }
+    dropped
+}
+
 /// Evaluates detections against their frames' ground truth.
 pub fn evaluate(frames: &[FrameDetections], opts: &EvalOptions) -> Result<(EvalReport, ApSummary)> {
     let dets = Detections::from_objects(frames.iter().map(|f| (f.info.id.clone(), f.objects.clone())))

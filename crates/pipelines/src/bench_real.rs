@@ -3,7 +3,9 @@
 //! per-dataset settings — exactly what `pi3det detect --ckpt M --data D --eval` does by default
 //! (each reader's intensity scale, levelling to the training sensor height) — and one table:
 //! per set and pooled, Car AP_R40 BEV / 3D at 0.7 and 0.5, Pedestrian at 0.5, recall at the
-//! strict threshold, detections per frame and frames without ground.
+//! strict threshold, detections per frame and frames without ground. On KITTI's full scans only
+//! the detections in the camera's view are scored, as the field does (OpenPCDet detects on the
+//! points in that view).
 //!
 //! `pi3det bench real --ckpt runs/demo/pointpillars_vehicle/final.safetensors [--root ../shared/data] [--out runs/bench_real]`
 
@@ -93,7 +95,8 @@ pub fn run(args: &BenchRealArgs) -> Result<()> {
             Some(v) => Preprocessor::new(&cfg)?.with_frame_transform(v.clone()),
             None => Preprocessor::new(&cfg)?,
         });
-        let (frames, _) = detect::detect(&det, &Subset::all(ds), args.batch_size, &mut |_, _| {})?;
+        let (mut frames, _) = detect::detect(&det, &Subset::all(ds), args.batch_size, &mut |_, _| {})?;
+        eval::keep_camera_view(&mut frames);
         let no_ground = levelling.map_or(0, |v| v.counts().no_ground);
         if let Some(out) = &args.out {
             let dir = out.join(name);

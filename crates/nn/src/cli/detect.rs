@@ -159,6 +159,11 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     println!("{} frames, {n} detections → {}", frames.len(), args.out.display());
     println!("{}", format_latency(&lat));
     if args.eval {
+        let mut frames = frames;
+        let outside = eval::keep_camera_view(&mut frames);
+        if outside > 0 {
+            eprintln!("evaluating without {outside} detections outside KITTI's camera view (nobody labels there)");
+        }
         let r = det.cfg().pillars.point_cloud_range;
         let opts = eval::options(&det.cfg().classes, Some([r[0], r[1], r[3], r[4]]), None);
         let (report, _) = eval::evaluate(&frames, &opts)?;
