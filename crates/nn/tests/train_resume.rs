@@ -140,7 +140,11 @@ fn resume_reproduces_an_uninterrupted_run() {
 
     // The final checkpoint reloads to the same detections; files for the evaluator.
     let (det, ck) = checkpoint::load_detector(&a.join("final.safetensors"), Device::Cpu).unwrap();
-    assert_eq!(ck.config, cfg);
+    // The config as given, plus what training recorded about its frames.
+    assert_eq!(ck.config.settings_toml(), cfg.settings_toml());
+    let recorded = ck.config.trained_on.expect("training records its frames");
+    assert!(recorded.sensor_height_m.is_some_and(|h| (1.5..2.2).contains(&h)), "{recorded:?}");
+    assert!(recorded.intensity_mean.is_some_and(|i| (0.0..1.0).contains(&i)), "{recorded:?}");
     assert_eq!(ck.state.epoch, 2);
     let (frames, lat) = detect::detect(&det, &val_set, 2, &mut |_, _| {}).unwrap();
     assert_eq!(frames.len(), 3);

@@ -304,7 +304,7 @@ fn check_class_names(infos: &[pi3det_data::FrameInfo], cfg: &DetectorConfig, wha
 /// under other loss weights (e.g. another λ_KL for Knowledge-Adaptation).
 fn architecture(cfg: &DetectorConfig) -> toml::Table {
     let mut t: toml::Table = toml::from_str(&cfg.to_toml()).unwrap_or_default();
-    for k in ["name", "train", "post", "loss_weights", "channels_last", "precision"] {
+    for k in ["name", "train", "post", "loss_weights", "channels_last", "precision", "trained_on"] {
         t.remove(k);
     }
     let loss_settings = [
