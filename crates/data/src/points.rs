@@ -135,6 +135,9 @@ pub enum IntensityCheck {
     Constant(f32),
     /// Values outside [0, 255] before scaling (or negative): no known convention; clamped to [0, 1].
     OutOfScale { min: f32, max: f32 },
+    /// This many points have a NaN or infinite intensity: set to 0 (the others are left as they
+    /// are, so the scale is not checked).
+    NonFinite(usize),
     /// Stored on the 0–255 scale though the format declares [0, 1] (a converter that kept a
     /// sensor's 8-bit values): divided by 255.
     ByteInUnitFormat,
@@ -150,10 +153,13 @@ impl PointCloud {
             return IntensityCheck::Absent;
         }
         let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        let mut non_finite = 0usize;
         for p in self.data.chunks_exact(s) {
             if p[3].is_finite() {
                 lo = lo.min(p[3]);
                 hi = hi.max(p[3]);
+            } else {
+                non_finite += 1;
             }
         }
         let mut check = IntensityCheck::Valid;
@@ -161,13 +167,16 @@ impl PointCloud {
             IntensityScale::Unit => 1.0,
             IntensityScale::Byte => 255.0,
         };
-        if !(lo.is_finite() && lo >= 0.0 && hi <= 255.0) {
+        if non_finite > 0 {
+            // NaN or infinite intensities (their points' coordinates are finite): set to 0.
+            check = IntensityCheck::NonFinite(non_finite);
+        } else if !(lo.is_finite() && lo >= 0.0 && hi <= 255.0) {
             check = IntensityCheck::OutOfScale { min: lo, max: hi };
         } else if scale == IntensityScale::Unit && hi > 1.0 {
             check = IntensityCheck::ByteInUnitFormat;
             divide = 255.0;
         }
-        if divide != 1.0 || matches!(check, IntensityCheck::OutOfScale { .. }) {
+        if divide != 1.0 || matches!(check, IntensityCheck::OutOfScale { .. } | IntensityCheck::NonFinite(_)) {
             for p in self.data.chunks_exact_mut(s) {
                 let v = if p[3].is_finite() { p[3] / divide } else { 0.0 };
                 p[3] = v.clamp(0.0, 1.0);
@@ -192,6 +201,7 @@ pub fn report_intensity(path: &Path, check: IntensityCheck) {
         IntensityCheck::OutOfScale { min, max } => {
             (1, format!("intensity spans {min}..{max}, outside every known scale ([0, 1], [0, 255]); clamped to [0, 1]"))
         }
+        IntensityCheck::NonFinite(n) => (3, format!("{n} points have a NaN or infinite intensity: set to 0")),
         IntensityCheck::ByteInUnitFormat => {
             (2, "intensity reaches above 1 in a format that stores [0, 1]: taken as 8-bit (0–255) and divided by 255".to_string())
         }
@@ -293,6 +303,9 @@ mod intensity_tests {
         let mut c = cloud(&[-3.0, 100.0, 4000.0]);
         assert_eq!(c.normalize_intensity(IntensityScale::Byte), IntensityCheck::OutOfScale { min: -3.0, max: 4000.0 });
         assert!(intensities(&c).iter().all(|v| (0.0..=1.0).contains(v)));
+        let mut nan = cloud(&[0.5, f32::NAN, 0.25]);
+        assert_eq!(nan.normalize_intensity(IntensityScale::Unit), IntensityCheck::NonFinite(1));
+        assert_eq!(intensities(&nan), [0.5, 0.0, 0.25]);
         let mut xyz = PointCloud::from_vec(vec![1.0, 2.0, 3.0], vec!["x".into(), "y".into(), "z".into()]).unwrap();
         assert_eq!(xyz.normalize_intensity(IntensityScale::Unit), IntensityCheck::Absent);
     }

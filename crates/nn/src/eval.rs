@@ -75,38 +75,33 @@ pub fn options(classes: &[String], bev_range: Option<[f64; 4]>, score_threshold:
 /// image (data in KITTI's format labelled beyond the view, as Argoverse's converter writes), drops
 /// the detections outside the image from those frames and returns how many.
 pub fn keep_camera_view(frames: &mut [FrameDetections]) -> usize {
-    fn in_view(info: &pi3det_data::FrameInfo, b: &pi3det_geometry::Box3d) -> Option<bool> {
+    /// The box centre in the camera's pixels (`None` behind it) and the image size, for frames
+    /// with KITTI calibration.
+    fn pixel(info: &pi3det_data::FrameInfo, b: &pi3det_geometry::Box3d) -> Option<(Option<[f64; 2]>, [f64; 2])> {
         let Some(pi3det_data::Calib::Kitti(calib)) = &info.calib else { return None };
         let [w, h] = info.cameras.first().and_then(|c| c.image_size).unwrap_or([1242, 375]);
         let rect = calib.lidar_to_rect([b.x, b.y, b.z]);
-        Some(
-            rect[2] > 0.0
-                && calib
-                    .rect_to_image(rect)
-                    .is_some_and(|[u, v]| (0.0..f64::from(w)).contains(&u) && (0.0..f64::from(h)).contains(&v)),
-        )
+        let uv = if rect[2] > 0.0 { calib.rect_to_image(rect) } else { None };
+        Some((uv, [f64::from(w), f64::from(h)]))
     }
+    // Inside the image grown by `margin` of its size on every side.
+    let inside = |(uv, [w, h]): (Option<[f64; 2]>, [f64; 2]), margin: f64| {
+        uv.is_some_and(|[u, v]| {
+            (-margin * w..(1.0 + margin) * w).contains(&u) && (-margin * h..(1.0 + margin) * h).contains(&v)
+        })
+    };
     // Truncated objects at the image's edge have their centre just outside it; an object behind
     // the camera or well beside the image is what says the labels go beyond the view.
-    let beyond = |info: &pi3det_data::FrameInfo, b: &pi3det_geometry::Box3d| {
-        let Some(pi3det_data::Calib::Kitti(calib)) = &info.calib else { return false };
-        let [w, h] = info.cameras.first().and_then(|c| c.image_size).unwrap_or([1242, 375]);
-        let (w, h) = (f64::from(w), f64::from(h));
-        let rect = calib.lidar_to_rect([b.x, b.y, b.z]);
-        rect[2] <= 0.0
-            || calib
-                .rect_to_image(rect)
-                .is_none_or(|[u, v]| !((-0.5 * w..1.5 * w).contains(&u) && (-0.5 * h..1.5 * h).contains(&v)))
-    };
-    let labels_all_around = frames.iter().any(|f| f.info.objects.iter().any(|o| beyond(&f.info, &o.box3d)));
-    if labels_all_around {
+    let labels_beyond_view =
+        frames.iter().any(|f| f.info.objects.iter().any(|o| pixel(&f.info, &o.box3d).is_some_and(|p| !inside(p, 0.5))));
+    if labels_beyond_view {
         return 0;
     }
     let mut dropped = 0;
     for f in frames.iter_mut() {
         let before = f.objects.len();
         let info = &f.info;
-        f.objects.retain(|o| in_view(info, &o.box3d) != Some(false));
+        f.objects.retain(|o| pixel(info, &o.box3d).is_none_or(|p| inside(p, 0.0)));
         dropped += before - f.objects.len();
     }
     dropped

@@ -379,18 +379,29 @@ pub fn train(mut opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Res
 /// intensity, recorded in the checkpoint's config ([`crate::config::TrainedOn`]).
 pub fn trained_on(train: &Subset, levelled: bool) -> Result<crate::config::TrainedOn> {
     let part = train.clone().take_spread(32);
-    let sums: Vec<(f64, usize)> = part
+    let ground = pi3det_ground::GroundConfig::default();
+    // One read per frame for both: (intensity sum, points with intensity, sensor height).
+    let per_frame: Vec<(f64, usize, Option<f64>)> = part
         .indices
         .par_iter()
         .map(|&i| {
             let f = part.dataset.load(i)?;
             let n = f.points.len();
             let sum: f64 = (0..n).filter_map(|k| f.points.intensity(k)).map(f64::from).sum();
-            Ok((sum, if f.points.stride() > 3 { n } else { 0 }))
+            let height = if levelled {
+                None
+            } else {
+                pi3det_ground::estimate_ground(f.points.xyz_f64(), &ground).ok().map(|e| e.height_m)
+            };
+            Ok((sum, if f.points.stride() > 3 { n } else { 0 }, height))
         })
         .collect::<Result<_>>()?;
-    let (sum, n) = sums.iter().fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    let sensor_height_m =
-        if levelled { None } else { crate::adapt::vpp::median_sensor_height(train, 32).ok().map(|(h, _)| h) };
-    Ok(crate::config::TrainedOn { sensor_height_m, intensity_mean: (n > 0).then(|| (sum / n as f64).clamp(0.0, 1.0)) })
+    let (sum, n) = per_frame.iter().fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let mut heights: Vec<f64> = per_frame.iter().filter_map(|f| f.2).collect();
+    heights.sort_by(f64::total_cmp);
+    Ok(crate::config::TrainedOn {
+        // The median, as VPP takes the source's height (`adapt::vpp::median_sensor_height`).
+        sensor_height_m: heights.get(heights.len() / 2).copied(),
+        intensity_mean: (n > 0).then(|| (sum / n as f64).clamp(0.0, 1.0)),
+    })
 }

@@ -206,7 +206,14 @@ impl SensorConfig {
 
     /// Every beam's elevation in degrees, highest first (the order of `beam_elevation_rad`).
     pub fn elevations_deg(&self) -> Vec<f64> {
-        (0..self.beams).map(|b| self.beam_elevation_rad(b).to_degrees()).collect()
+        match &self.elevation_table_deg {
+            Some(t) => {
+                let mut sorted = t.clone();
+                sorted.sort_by(|a, b| b.total_cmp(a));
+                sorted
+            }
+            None => (0..self.beams).map(|b| self.beam_elevation_rad(b).to_degrees()).collect(),
+        }
     }
 
     pub fn validate(&self) -> Result<(), SimError> {
@@ -247,10 +254,8 @@ impl SensorConfig {
 
     /// Elevation of beam `b` (beam 0 is the highest, as Ouster numbers them; a table is sorted so).
     pub fn beam_elevation_rad(&self, b: u32) -> f64 {
-        if let Some(t) = &self.elevation_table_deg {
-            let mut sorted = t.clone();
-            sorted.sort_by(|a, b| b.total_cmp(a));
-            return sorted[b as usize].to_radians();
+        if self.elevation_table_deg.is_some() {
+            return self.elevations_deg()[b as usize].to_radians();
         }
         let span = self.elevation_max_deg - self.elevation_min_deg;
         let frac = if self.beams > 1 { b as f64 / (self.beams - 1) as f64 } else { 0.5 };
@@ -261,8 +266,12 @@ impl SensorConfig {
     /// looks along +x and azimuth grows counter-clockwise.
     pub fn ray_directions(&self) -> Vec<[f64; 3]> {
         let mut dirs = Vec::with_capacity(self.rays_per_scan());
-        for b in 0..self.beams {
-            let el = self.beam_elevation_rad(b);
+        // A table is sorted once, not per beam.
+        let elevations_rad: Vec<f64> = match &self.elevation_table_deg {
+            Some(_) => self.elevations_deg().into_iter().map(f64::to_radians).collect(),
+            None => (0..self.beams).map(|b| self.beam_elevation_rad(b)).collect(),
+        };
+        for el in elevations_rad {
             let (se, ce) = el.sin_cos();
             for c in 0..self.columns {
                 let az = std::f64::consts::TAU * c as f64 / self.columns as f64;
