@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
-"""Run a `pi3det benchmark` suite on a Ray cluster: one Ray task per cell.
+"""Run a `pi3det bench suite` suite on a Ray cluster: one Ray task per cell.
 
     .venv-ray/bin/python scripts/ray_benchmark.py --suite configs/benchmark/mini.toml \
         --out runs/bench_ray [--address auto] [--pi3det target/release/pi3det] [--cpus-per-cell 2]
 
-Every cell is independent (`pi3det benchmark --list` names them), so each Ray task runs
-`pi3det benchmark --suite SUITE --only CELL --out TMP` on the node Ray picks and returns its
+Every cell is independent (`pi3det bench suite --list` names them), so each Ray task runs
+`pi3det bench suite --suite SUITE --only CELL --out TMP` on the node Ray picks and returns its
 `cells/` folder as a tar archive; the driver unpacks them under OUT/parts/ and writes the tables
-with `pi3det benchmark --merge` (the same merge as for `--shard i/N` runs on separate machines).
+with `pi3det bench suite --merge` (the same merge as for `--shard i/N` runs on separate machines).
 Every node needs the pi3det binaries and the suite's files at the same paths (one image, or a
 shared filesystem). With --shared-out the tasks write straight into OUT instead (a filesystem all
 nodes see): then artifacts several cells share (simulated data, the source model) are made once,
@@ -38,13 +38,13 @@ def parse_args():
     p.add_argument("--cpus-per-cell", type=float, default=1.0)
     p.add_argument("--gpus-per-cell", type=float, default=0.0)
     p.add_argument("--torch-threads", type=int, default=None, help="libtorch threads per cell")
-    p.add_argument("--only", default=None, help="cell patterns, as pi3det benchmark --only")
+    p.add_argument("--only", default=None, help="cell patterns, as pi3det bench suite --only")
     p.add_argument("--shared-out", action="store_true", help="tasks write into --out directly (shared filesystem)")
     return p.parse_args()
 
 
 def cell_ids(a):
-    cmd = [a.pi3det, "benchmark", "--suite", a.suite, "--list"]
+    cmd = [a.pi3det, "bench", "suite", "--suite", a.suite, "--list"]
     if a.only:
         cmd += ["--only", a.only]
     r = subprocess.run(cmd, capture_output=True, text=True)
@@ -58,7 +58,7 @@ def run_cell(pi3det, suite, cell, out, torch_threads):
     """One cell; returns (cell, exit status, tar of cells/ or None, stderr tail)."""
     own = out is None
     work = tempfile.mkdtemp(prefix="pi3det_cell_") if own else out
-    cmd = [pi3det, "benchmark", "--suite", suite, "--only", cell, "--out", work]
+    cmd = [pi3det, "bench", "suite", "--suite", suite, "--only", cell, "--out", work]
     if torch_threads:
         cmd += ["--torch-threads", str(torch_threads)]
     r = subprocess.run(cmd, capture_output=True, text=True)
@@ -112,7 +112,7 @@ def main():
             failed += 1
             sys.stderr.write(err)
     ray.shutdown()
-    merge = [a.pi3det, "benchmark", "--suite", a.suite, "--out", a.out, "--merge"] + (parts or [a.out])
+    merge = [a.pi3det, "bench", "suite", "--suite", a.suite, "--out", a.out, "--merge"] + (parts or [a.out])
     r = subprocess.run(merge)
     if r.returncode != 0:
         return 2

@@ -1,7 +1,7 @@
 //! `pi3det`: perspective-invariant LiDAR 3D object detection (Pi3DET) from the command line.
 //!
 //! This binary does not link libtorch: the detector commands ([`cmd::torch::FORWARDED`]) are
-//! listed here but run in `pi3det-torch` (crates/pipelines), see [`cmd::torch`].
+//! listed here but run in `pi3det-torch` (crates/cli-torch), see [`cmd::torch`].
 
 mod cmd;
 
@@ -55,15 +55,19 @@ enum Command {
     Export(Forwarded),
     /// Simulate vehicle/drone/quadruped data, train on the vehicle, evaluate on all three.
     Demo(Forwarded),
-    /// The cross-platform benchmark: methods × detectors × tasks as resumable, shardable cells → the paper's tables.
+    /// The old name of `bench suite`, still accepted.
+    #[command(hide = true)]
     Benchmark(Forwarded),
-    /// Benchmarks that print a table.
+    /// Measurements that print a table: speed (sim, sequence, nn, sparse, live) and accuracy
+    /// (suite, real, autolabel).
     #[command(subcommand)]
     Bench(BenchCommand),
 }
 
 #[derive(Subcommand)]
 enum BenchCommand {
+    /// The cross-platform benchmark: methods × detectors × tasks as resumable, shardable cells → the paper's tables.
+    Suite(Forwarded),
     /// Simulator throughput (frames/s, rays/s) for a 64×1024 scan.
     Sim(pi3det_sim::cli::BenchArgs),
     /// Box fusion and tracking against ground truth with simulated detectors, and their speed.
@@ -121,7 +125,11 @@ fn main() -> std::process::ExitCode {
         | Command::Run(_)
         | Command::Export(_)
         | Command::Bench(
-            BenchCommand::Nn(_) | BenchCommand::Live(_) | BenchCommand::Sparse(_) | BenchCommand::Real(_),
+            BenchCommand::Suite(_)
+            | BenchCommand::Nn(_)
+            | BenchCommand::Live(_)
+            | BenchCommand::Sparse(_)
+            | BenchCommand::Real(_),
         ) => {
             unreachable!("handed to pi3det-torch above")
         }

@@ -147,7 +147,7 @@ fn a_missing_pi3det_torch_is_a_clear_error() {
         .expect("the copied pi3det stayed busy");
     assert_eq!(out.status.code(), Some(1));
     let err = text(&out.stderr);
-    assert!(err.contains("pi3det-torch") && err.contains("cargo build --release -p pi3det-pipelines"), "{err}");
+    assert!(err.contains("pi3det-torch") && err.contains("cargo build --release -p pi3det-cli-torch"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
 

@@ -9,7 +9,7 @@
 //! - [`replay`]: a loopback packet replayer with loss, reordering, duplicates, garbage, a
 //!   frame-id wrap and a sensor restart, for tests and the soak benchmark.
 //!
-//! The inference loop itself (`pi3det run`) lives in crates/pipelines, which links libtorch.
+//! The inference loop itself (`pi3det run`) lives in crates/cli-torch, which links libtorch.
 
 pub mod error;
 pub mod latency;

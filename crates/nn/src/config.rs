@@ -70,15 +70,15 @@ pub struct PostConfig {
     /// Run NMS per class instead of over all classes at once.
     pub per_class_nms: bool,
     /// Fit each detection's bottom and top to the frame's points after NMS (absent: off).
-    pub ground_fit: Option<crate::ground_fit::GroundFitConfig>,
+    pub ground_fit: Option<crate::post_process::ground_fit::GroundFitConfig>,
     /// Fit each long detection's heading and BEV centre to the points on its faces, after the
     /// vertical fit (absent: off).
-    pub bev_fit: Option<crate::bev_fit::BevFitConfig>,
+    pub bev_fit: Option<crate::post_process::bev_fit::BevFitConfig>,
     /// Lower the scores of small-object detections that are not upright bodies, after the fits
     /// (absent: off).
-    pub upright_check: Option<crate::upright_check::UprightCheckConfig>,
+    pub upright_check: Option<crate::post_process::upright_check::UprightCheckConfig>,
     /// Test-time augmentation: views of each frame fused before the fits (absent: off).
-    pub tta: Option<crate::tta::TtaConfig>,
+    pub tta: Option<crate::post_process::tta::TtaConfig>,
 }
 
 impl PostConfig {
@@ -214,7 +214,7 @@ pub struct DetectorConfig {
     /// Optional second stage refining the dense head's boxes from RoI features.
     pub roi_head: Option<crate::roi_heads::RoiHeadConfig>,
     /// Pi3DET-Net's KL Probabilistic Feature Alignment on the second stage's RoI features.
-    pub pfa: Option<crate::adapt::PfaConfig>,
+    pub pfa: Option<crate::roi_heads::pfa::PfaConfig>,
     /// Scales applied to named loss terms on top of each stage's own weights (e.g. `loc = 1.5`).
     pub loss_weights: BTreeMap<String, f64>,
     pub post: PostConfig,

@@ -17,8 +17,8 @@ use rayon::prelude::*;
 use crate::augment::Augment;
 use crate::dense_heads::{BatchTargets, FrameTargets};
 use crate::error::{NnError, Result};
-use crate::ground_fit::{PointIndex, INDEX_CELL_M};
 use crate::pillarize::{Grid, Pillarizer, Pillars};
+use crate::post_process::ground_fit::{PointIndex, INDEX_CELL_M};
 use crate::preprocess::{Inputs, Preprocessor};
 use pi3det_geometry::{Box3d, Pose, View};
 
@@ -132,7 +132,7 @@ pub struct PreparedFrame {
     /// At inference: the frame seen through each of [`LoaderOptions::views`].
     pub view_pillars: Vec<Pillars>,
     /// At inference: the frame's points (detector frame) indexed for the vertical box fit
-    /// ([`crate::ground_fit`]).
+    /// ([`crate::post_process::ground_fit`]).
     pub point_index: Option<PointIndex>,
     pub targets: Option<FrameTargets>,
     pub detector_from_lidar: Pose,
@@ -150,7 +150,7 @@ pub struct LoaderOptions {
     pub prefetch: usize,
     pub drop_last: bool,
     /// At inference: test-time views (besides the frame as it is) each frame is also prepared
-    /// in ([`crate::tta`]); empty: none.
+    /// in ([`crate::post_process::tta`]); empty: none.
     pub views: Vec<View>,
 }
 

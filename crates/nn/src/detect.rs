@@ -70,7 +70,7 @@ pub fn detect(
 
 /// [`detect`] with frames prepared by `prep` (e.g. one with Virtual Platform Pose) instead of
 /// the detector's own preprocessor; detections go back through each frame's transform. `tta`:
-/// whether the config's test-time augmentation (`[post.tta]`, [`crate::tta`]) runs, when it has one.
+/// whether the config's test-time augmentation (`[post.tta]`, [`crate::post_process::tta`]) runs, when it has one.
 pub fn detect_with(
     det: &Detector,
     prep: Arc<Preprocessor>,
@@ -112,7 +112,7 @@ pub fn detect_with(
             // Each view's boxes back in the frame and fitted to its points there, then fused.
             let v = batch.views_per_frame;
             for (k, d) in dets.iter_mut().enumerate() {
-                crate::tta::out_of_view(d, views[k % v]);
+                crate::post_process::tta::out_of_view(d, views[k % v]);
                 let (index, pose) = (&batch.point_index[k / v], &batch.detector_from_lidar[k / v]);
                 let one = std::slice::from_mut(d);
                 crate::post_process::fit_to_points(

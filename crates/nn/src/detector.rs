@@ -19,24 +19,25 @@ use rand_chacha::ChaCha8Rng;
 use tch::nn::VarStore;
 use tch::{Device, Kind, Tensor};
 
-use crate::adapt::pfa::{Latent, Pfa};
 use crate::backbone_2d::Backbone2d;
-use crate::backbones_3d::{height_compression, Backbone3d};
+use crate::backbones_3d::Backbone3d;
 use crate::config::DetectorConfig;
 use crate::data_loader::FrameGt;
 use crate::dense_heads::{AnyDenseHead, BatchTargets, DenseOutput};
 use crate::error::{NnError, Result};
 use crate::losses::LossTerms;
+use crate::map_to_bev::height_compression;
+use crate::map_to_bev::scatter;
 use crate::necks::gtd::rotation_loss;
 use crate::necks::{Neck, NeckOutput};
 pub use crate::post_process::Detection;
 use crate::post_process::{nms_detections, to_detections};
 pub use crate::preprocess::{Inputs, Preprocessor};
+use crate::roi_heads::pfa::{Latent, Pfa};
 use crate::roi_heads::roi_head::refined_frames;
 use crate::roi_heads::{
     PillarPoints, ProposalBatch, Proposals, RoiBatchTargets, RoiOutput, RoiSource, SecondStage, StageGeometry,
 };
-use crate::scatter::scatter;
 use crate::sparse::SparseTensor;
 use crate::vfe::{MeanVfe, Vfe};
 
@@ -290,14 +291,14 @@ impl Detector {
     }
 
     /// The loss of a Knowledge-Adaptation target batch whose background follows `neg`
-    /// ([`crate::adapt::coverage`]): the target's terms of [`loss`](Self::loss), with the
+    /// ([`crate::losses::target_negatives`]): the target's terms of [`loss`](Self::loss), with the
     /// dense head's and the second stage's classification under the rules.
     pub fn loss_target(
         &self,
         out: &Forward,
         targets: &BatchTargets,
         gt: &[FrameGt],
-        neg: &crate::adapt::coverage::TargetNegatives,
+        neg: &crate::losses::target_negatives::TargetNegatives,
     ) -> Result<LossTerms> {
         self.loss_impl(out, targets, gt, Domain::Target, Some(neg))
     }
@@ -308,7 +309,7 @@ impl Detector {
         targets: &BatchTargets,
         gt: &[FrameGt],
         domain: Domain,
-        neg: Option<&crate::adapt::coverage::TargetNegatives>,
+        neg: Option<&crate::losses::target_negatives::TargetNegatives>,
     ) -> Result<LossTerms> {
         let mut losses = LossTerms::new(&self.cfg().loss_weights);
         match neg {
@@ -356,7 +357,7 @@ impl Detector {
     /// λ_KL times PFA's `L_KL` between a source and a target batch's latents.
     pub fn kl_loss(&self, source: &Latent, target: &Latent) -> Option<Tensor> {
         let cfg = self.cfg().pfa.as_ref()?;
-        Some(crate::adapt::pfa::kl_loss(source, target, cfg.kl_estimator)? * cfg.kl_weight)
+        Some(crate::roi_heads::pfa::kl_loss(source, target, cfg.kl_estimator)? * cfg.kl_weight)
     }
 
     /// Final detections per frame in the detector's frame: the refined RoIs (second stage) or

@@ -7,38 +7,34 @@
 //!
 //! | module | what |
 //! | --- | --- |
-//! | [`pillarize`] | points → pillars with decorated point features (rayon) |
-//! | [`vfe`], [`scatter`], [`backbone_2d`] | pillar feature net, BEV scatter, BEV backbone |
-//! | [`backbones_3d`] | the `backbone_3d` slot (`VoxelBackBone8x`) and its `map_to_bev` (height compression) |
-//! | [`sparse`] | sparse 3-D convolution (rulebooks in Rust, gather → GEMM → scatter-add in tch) |
+//! | [`pillarize`] | points → pillars (or voxels) with decorated point features (rayon) |
+//! | [`vfe`] | the `vfe` slot: pillar feature net, mean voxel features |
+//! | [`backbones_3d`], [`sparse`] | the `backbone_3d` slot (`VoxelBackBone8x`); sparse 3-D convolution (rulebooks in Rust, gather → GEMM → scatter-add in tch) |
+//! | [`map_to_bev`] | the `map_to_bev` slot: pillar scatter, height compression |
+//! | [`backbone_2d`], [`necks`] | the BEV backbone; the BEV-to-BEV slot (GTD) |
 //! | [`dense_heads`] | anchor head, center head |
-//! | [`target_assigner`], [`box_coder`], [`losses`] | anchors and IoU assignment, Gaussian heatmaps, encodings, losses |
-//! | [`augment`] | world flip / rotation / scaling, random object rotation, GT sampling, Random Platform Jitter |
-//! | [`detector`] | the model chain `vfe → map_to_bev → backbone_2d → [neck] → dense_head` |
-//! | [`preprocess`], [`post_process`] | per-frame `detector_from_lidar`, pillars and targets; score threshold and rotated NMS |
-//! | [`ground_fit`], [`bev_fit`] | post-NMS box fits to the points: bottom and top; heading and BEV centre |
-//! | [`necks`] | the BEV-to-BEV slot |
-//! | [`roi_heads`] | the second stage: proposals, RoI sampling, BEV RoI pooling, IoU-guided score and box refinement |
+//! | [`roi_heads`] | the second stage: proposals, RoI sampling, BEV / point / voxel RoI pooling, IoU-guided score and box refinement; PFA on the RoI features |
+//! | [`target_assigner`], [`box_coder`], [`losses`] | anchors and IoU assignment, Gaussian heatmaps, encodings, losses (with KA's target background rules) |
+//! | [`augment`] | world flip / rotation / scaling, random object rotation / scaling, GT sampling, Random Platform Jitter, sensor randomisation |
+//! | [`detector`] | the model chain `vfe → [backbone_3d] → map_to_bev → backbone_2d → [neck] → dense_head → [roi_head]` |
+//! | [`preprocess`] | per-frame `detector_from_lidar` (levelling, VPP), pillars and targets |
+//! | [`post_process`] | score threshold and rotated NMS, then the box fits, the upright check, test-time augmentation |
 //! | [`data_loader`], [`train`], [`optim`], [`checkpoint`] | batches on a background thread, the training loop, AdamW + one-cycle, safetensors checkpoints |
-//! | [`detect`], [`eval`] | inference over a dataset, JSON lines / `result.pkl`, evaluation with `pi3det-eval` |
-//! | [`bench`](mod@bench) | the side-by-side benchmark against PyTorch (`python/bench_pointpillars.py`) |
-//! | `cli` (feature `cli`) | `pi3det train / detect / bench nn` (mounted by `pi3det-torch`, crates/pipelines) |
+//! | [`detect`], [`eval`], [`export`] | inference over a dataset, JSON lines / `result.pkl`, evaluation with `pi3det-eval`; TorchScript |
+//! | [`config`], [`config_override`], [`device`], [`precision`] | the TOML config and `--set`; CPU / CUDA, threads; f32 / bf16 |
+//!
+//! Pi3DET-Net's stages and the adaptation baselines are in `pi3det-adapt`; the commands that run
+//! all of this (`pi3det train / detect / adapt / bench nn …`) are in `pi3det-cli-torch`.
 //!
 //! Devices: [`device`] picks CUDA when libtorch's CUDA library loads and finds a GPU
 //! (`--device auto`), else the CPU; on the CPU the BEV network runs channels-last (oneDNN) and
 //! libtorch uses every core unless told otherwise ([`device::default_threads`]).
 
-pub mod adapt;
 pub mod augment;
 pub mod backbone_2d;
 pub mod backbones_3d;
-pub mod baselines;
-pub mod bench;
-pub mod bev_fit;
 pub mod box_coder;
 pub mod checkpoint;
-#[cfg(feature = "cli")]
-pub mod cli;
 pub mod config;
 pub mod config_override;
 pub mod data_loader;
@@ -49,8 +45,8 @@ pub mod device;
 pub mod error;
 pub mod eval;
 pub mod export;
-pub mod ground_fit;
 pub mod losses;
+pub mod map_to_bev;
 pub mod necks;
 pub mod optim;
 pub mod pillarize;
@@ -58,13 +54,10 @@ pub mod post_process;
 pub mod precision;
 pub mod preprocess;
 pub mod roi_heads;
-pub mod scatter;
 pub mod sparse;
 pub mod target_assigner;
 pub mod testing;
 pub mod train;
-pub mod tta;
-pub mod upright_check;
 pub mod vfe;
 
 pub use config::DetectorConfig;

@@ -1,4 +1,4 @@
-//! The post-NMS box fits ([`pi3det_nn::ground_fit`], [`pi3det_nn::bev_fit`]) on real vehicles:
+//! The post-NMS box fits ([`pi3det_nn::post_process::ground_fit`], [`pi3det_nn::post_process::bev_fit`]) on real vehicles:
 //! the KITTI scans of `../shared/data/pi3det_sample` (HDL-64, in the released Pi3DET layout) and
 //! the nuScenes sweep of `../shared/data/nuscenes_demo` (32 beams). The fits' settings were
 //! chosen on simulated cars, whose faces are opaque planes; real cars have windows the laser
@@ -16,9 +16,9 @@
 use std::path::Path;
 
 use pi3det_geometry::{bev_iou, iou_3d, Box3d};
-use pi3det_nn::bev_fit::{self, BevFitConfig};
 use pi3det_nn::data_loader::{open_split, Subset};
-use pi3det_nn::ground_fit::{self, GroundFitConfig, PointIndex, INDEX_CELL_M};
+use pi3det_nn::post_process::bev_fit::{self, BevFitConfig};
+use pi3det_nn::post_process::ground_fit::{self, GroundFitConfig, PointIndex, INDEX_CELL_M};
 
 /// The real labelled vehicles within 50 m, each with its frame's point index.
 fn real_vehicles() -> Vec<(Box3d, std::rc::Rc<PointIndex>)> {

@@ -104,13 +104,14 @@ fn voxel_detector_checkpoint_round_trips() {
 /// weights give the f32 BEV map to within bf16's resolution, handed to the heads in f32.
 #[test]
 fn bf16_inference_matches_f32() {
-    use pi3det_nn::adapt::pipeline::AdaptConfig;
     use pi3det_nn::precision::Precision;
     use pi3det_nn::preprocess::Preprocessor;
     tch::set_num_threads(1);
     tch::manual_seed(0);
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/pi3det_net_cpu.toml");
-    let mut cfg = AdaptConfig::from_file(&path).unwrap().detector;
+    // The preset's `[detector]` table (the adaptation's own tables belong to pi3det-adapt).
+    let preset: toml::Table = toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let mut cfg = DetectorConfig::from_toml_str(&toml::to_string(&preset["detector"]).unwrap()).unwrap();
     cfg.precision = Precision::F32;
     let mut det = Detector::new(&cfg, Device::Cpu).unwrap();
     let p = det.prep.pillarizer().unwrap().run(&frame().points, cfg.pillars.max_pillars_test);

@@ -13,9 +13,9 @@ use pi3det_nn::checkpoint;
 use pi3det_nn::config::TrainConfig;
 use pi3det_nn::data_loader::{open_split, Subset};
 use pi3det_nn::detect;
+use pi3det_nn::post_process::tta::TtaConfig;
 use pi3det_nn::testing::tiny_detector;
 use pi3det_nn::train::{train, TrainOptions};
-use pi3det_nn::tta::TtaConfig;
 use pi3det_nn::DetectorConfig;
 use pi3det_sim::{ExportOptions, PlatformPlan, SimConfig};
 use tch::{Device, Tensor};
@@ -163,8 +163,8 @@ fn resume_reproduces_an_uninterrupted_run() {
     let with_fit = |ground: bool, bev: bool| {
         let mut c = ck.config.clone();
         c.post.score_threshold = 0.0;
-        c.post.ground_fit = ground.then(pi3det_nn::ground_fit::GroundFitConfig::default);
-        let few = pi3det_nn::bev_fit::BevFitConfig { min_points: 5, ..Default::default() };
+        c.post.ground_fit = ground.then(pi3det_nn::post_process::ground_fit::GroundFitConfig::default);
+        let few = pi3det_nn::post_process::bev_fit::BevFitConfig { min_points: 5, ..Default::default() };
         c.post.bev_fit = bev.then_some(few);
         let mut d = pi3det_nn::Detector::new(&c, Device::Cpu).unwrap();
         ck.load_into(&mut d, &a.join("final.safetensors")).unwrap();

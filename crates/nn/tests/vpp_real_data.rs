@@ -5,8 +5,8 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use pi3det_nn::adapt::{VirtualPlatformPose, VppConfig};
 use pi3det_nn::data_loader::{open_split, Subset};
+use pi3det_nn::preprocess::vpp::{VirtualPlatformPose, VppConfig};
 use pi3det_nn::preprocess::{to_lidar, FrameTransform};
 use pi3det_nn::DetectorConfig;
 
@@ -17,7 +17,7 @@ fn pose_free_vpp_levels_real_frames_and_puts_objects_on_the_source_ground() {
     assert!(ds.info(0).unwrap().world_from_lidar.is_none(), "the released layout has no poses");
     let subset = Subset::all(ds);
     // KITTI's Velodyne is 1.73 m above the road.
-    let (h, n) = pi3det_nn::adapt::vpp::median_sensor_height(&subset, 64).unwrap();
+    let (h, n) = pi3det_nn::preprocess::vpp::median_sensor_height(&subset, 64).unwrap();
     assert_eq!(n, subset.len());
     assert!((h - 1.73).abs() < 0.15, "median sensor height {h}");
     // As a target seen from a 1.2 m source sensor: ground at shift_z − 1.2 = 0.7 m.

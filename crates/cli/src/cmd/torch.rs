@@ -1,5 +1,5 @@
 //! The detector commands ([`FORWARDED`]) run in a separate executable, `pi3det-torch`
-//! (crates/pipelines), the only one that links libtorch: `pi3det` itself never loads it, so the
+//! (crates/cli-torch), the only one that links libtorch: `pi3det` itself never loads it, so the
 //! other commands start in milliseconds. `pi3det` lists these commands in its help and hands
 //! each over with its arguments verbatim (on Unix by `exec`, so the exit status, signals and
 //! terminal are the child's own).
@@ -54,6 +54,8 @@ pub const FORWARDED: &[&str] = &[
     "run",
     "export",
     "demo",
+    "bench suite",
+    // The old name of `bench suite` (hidden).
     "benchmark",
     "bench nn",
     "bench live",
@@ -80,7 +82,7 @@ pub fn is_help_for_forwarded(args: &[OsString]) -> bool {
     }
 }
 
-/// Whether `args` run a command that trains a network (`train`, `adapt`, `demo`, `benchmark`,
+/// Whether `args` run a command that trains a network (`train`, `adapt`, `demo`, `bench suite`,
 /// `bench nn`). For these `pi3det` sets `OMP_WAIT_POLICY=ACTIVE` unless the user set it: a
 /// backward pass is many short OpenMP regions, and workers that spin between them instead of
 /// sleeping make a training step faster; inference gains nothing, and a live `run` would burn a
@@ -88,7 +90,10 @@ pub fn is_help_for_forwarded(args: &[OsString]) -> bool {
 /// (results/2026-12-05-omp-wait-policy.md). It has to be set before libtorch loads, hence here
 /// and not in `pi3det-torch`.
 pub fn trains(args: &[OsString]) -> bool {
-    matches!(command_words(args, 2).as_slice(), ["train" | "adapt" | "demo" | "benchmark", ..] | ["bench", "nn"])
+    matches!(
+        command_words(args, 2).as_slice(),
+        ["train" | "adapt" | "demo" | "benchmark", ..] | ["bench", "nn" | "suite", ..]
+    )
 }
 
 /// Whether `args` run the detector beside other work on a robot computer (`run`, `bench live`).
@@ -124,7 +129,7 @@ pub fn locate() -> anyhow::Result<PathBuf> {
     }
     bail!(
         "the detector commands ({}) run in the {EXE} executable, which is neither beside {} nor on PATH; \
-         build it with `cargo build --release -p pi3det-pipelines` (scripts/demo builds both binaries; it needs libtorch, see scripts/setup-torch), \
+         build it with `cargo build --release -p pi3det-cli-torch` (scripts/demo builds both binaries; it needs libtorch, see scripts/setup-torch), \
          or set PI3DET_TORCH to its path",
         FORWARDED.join(", "),
         exe.as_deref().map_or_else(|| "this executable".into(), |e| e.display().to_string())
@@ -185,7 +190,7 @@ mod tests {
         assert_eq!(forwarded(&v(&["info", "train"])), None, "only the leading words name the command");
         assert_eq!(forwarded(&v(&["--help"])), None);
         // Every training command is a forwarded one.
-        for t in [&["train"][..], &["adapt"], &["demo"], &["benchmark"], &["bench", "nn"]] {
+        for t in [&["train"][..], &["adapt"], &["demo"], &["benchmark"], &["bench", "suite"], &["bench", "nn"]] {
             assert!(trains(&v(t)) && forwarded(&v(t)).is_some(), "{t:?}");
         }
     }

@@ -1,13 +1,11 @@
-//! The `backbone_3d` slot: sparse 3-D convolutional backbones over voxels ([`crate::sparse`]),
-//! and `map_to_bev`, which turns their output into the BEV map the 2-D backbone takes.
+//! The `backbone_3d` slot: sparse 3-D convolutional backbones over voxels ([`crate::sparse`]);
+//! [`crate::map_to_bev`] turns their output into the BEV map the 2-D backbone takes.
 
-pub mod height_compression;
 pub mod voxel_backbone_8x;
 
 use serde::{Deserialize, Serialize};
 use tch::nn;
 
-pub use height_compression::height_compression;
 pub use voxel_backbone_8x::{VoxelBackbone8x, VoxelBackbone8xConfig};
 
 use crate::error::Result;

@@ -12,8 +12,8 @@ use tch::{Device, Kind, Tensor};
 use pi3det_geometry::Box3d;
 
 use super::{Candidates, DenseHead, TargetAssigner, ToDevice};
-use crate::adapt::coverage::TargetNegatives;
 use crate::box_coder::{limit_period_tensor, ResidualCoder};
+use crate::losses::target_negatives::TargetNegatives;
 use crate::losses::{self, LossTerms};
 use crate::target_assigner::axis_aligned::{self, AnchorTargets, DIR_OFFSET, NUM_DIR_BINS};
 use crate::target_assigner::{AnchorClassConfig, Anchors, CenterMap};
@@ -261,7 +261,7 @@ impl AnchorHead {
     }
 
     /// [`loss`](Self::loss) of a target batch under KA's background rules
-    /// ([`crate::adapt::coverage`]): background anchors the model scores at least
+    /// ([`crate::losses::target_negatives`]): background anchors the model scores at least
     /// `neg.unsure_score` and that overlap no box are ignored, and each frame's background
     /// anchors are weighted by its `neg.frame_weight`. The normalisation (positives per frame)
     /// is unchanged, so a frame's background can only lose weight.

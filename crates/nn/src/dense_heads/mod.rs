@@ -16,8 +16,8 @@ use tch::{Device, Tensor};
 pub use anchor_head::{AnchorHead, AnchorHeadConfig};
 pub use center_head::{CenterHead, CenterHeadConfig};
 
-use crate::adapt::coverage::TargetNegatives;
 use crate::error::{NnError, Result};
+use crate::losses::target_negatives::TargetNegatives;
 use crate::losses::LossTerms;
 
 /// Candidate boxes of one frame before NMS, on the CPU, in the detector frame.
@@ -44,7 +44,7 @@ pub trait DenseHead {
     /// Adds the head's named, weighted loss terms.
     fn loss(&self, out: &Self::Output, targets: &Self::Targets, losses: &mut LossTerms);
     /// The loss of a Knowledge-Adaptation target batch under its background rules
-    /// ([`crate::adapt::coverage`]); a head without them trains the target as any batch.
+    /// ([`crate::losses::target_negatives`]); a head without them trains the target as any batch.
     fn loss_target(&self, out: &Self::Output, targets: &Self::Targets, _neg: &TargetNegatives, losses: &mut LossTerms) {
         self.loss(out, targets, losses)
     }

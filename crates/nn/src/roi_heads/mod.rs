@@ -24,6 +24,7 @@
 //! [`crate::target_assigner::center::CenterMap`]).
 
 pub mod bev_roi_pool;
+pub mod pfa;
 pub mod point_roi_pool;
 pub mod proposal;
 pub mod roi_coder;
@@ -42,9 +43,9 @@ pub use voxel_roi_pool::{StageGeometry, VoxelPoolStage, VoxelRoiPool, VoxelRoiPo
 use rand_chacha::ChaCha8Rng;
 use tch::Tensor;
 
-use crate::adapt::coverage::TargetNegatives;
 use crate::data_loader::FrameGt;
 use crate::error::Result;
+use crate::losses::target_negatives::TargetNegatives;
 use crate::losses::LossTerms;
 use crate::target_assigner::CenterMap;
 
@@ -63,7 +64,7 @@ pub trait SecondStage {
     /// Adds the stage's named loss terms.
     fn loss(&self, out: &RoiOutput, targets: &RoiBatchTargets, losses: &mut LossTerms) -> Result<()>;
     /// The loss of a Knowledge-Adaptation target batch under its background rules
-    /// ([`crate::adapt::coverage`]); by default the plain loss.
+    /// ([`crate::losses::target_negatives`]); by default the plain loss.
     fn loss_target(
         &self,
         out: &RoiOutput,

@@ -23,10 +23,10 @@ use super::proposal::ProposalConfig;
 use super::roi_coder::{corner_loss, RoiCoder};
 use super::roi_sampler::{RoiBatchTargets, RoiSamplerConfig};
 use super::voxel_roi_pool::{StageGeometry, VoxelRoiPool, VoxelRoiPoolConfig};
-use crate::adapt::coverage::TargetNegatives;
 use crate::box_coder::limit_period_tensor;
 use crate::error::{NnError, Result};
 use crate::losses;
+use crate::losses::target_negatives::TargetNegatives;
 use crate::sparse::SparseTensor;
 use crate::target_assigner::center::CenterMap;
 use crate::BatchNorm;
@@ -410,7 +410,7 @@ impl RoiHead {
     }
 
     /// [`loss`](Self::loss) of a target batch under KA's background rules
-    /// ([`crate::adapt::coverage`]): sampled RoIs that overlap no box (IoU 0) and whose
+    /// ([`crate::losses::target_negatives`]): sampled RoIs that overlap no box (IoU 0) and whose
     /// first-stage score is at least `neg.unsure_score` leave the score loss, and RoIs with a
     /// zero score target are weighted by their frame's `neg.frame_weight`. The score loss is
     /// still averaged over the rows it keeps.

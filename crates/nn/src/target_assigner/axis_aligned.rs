@@ -26,7 +26,7 @@ pub struct AnchorTargets {
     /// Anchors (ascending) that overlap a box of their class (BEV IoU > 0) without being its
     /// positives: background explained by a box (a badly placed anchor on it), which
     /// Knowledge-Adaptation keeps as background however the model scores it
-    /// ([`crate::adapt::coverage`]).
+    /// ([`crate::losses::target_negatives`]).
     pub near_positive: Vec<i64>,
 }
 

@@ -1,0 +1,408 @@
+//! A benchmark suite (`configs/benchmark/<suite>.toml`): datasets (simulator recipes or folders
+//! on disk), tasks (source → target), methods and detectors. Every (task, method, detector) is a
+//! [`Cell`]; the suite is checked whole — unknown methods, datasets, missing paths or configs —
+//! before any cell runs.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use pi3det_adapt::baselines::redb::RedbConfig;
+use pi3det_adapt::baselines::self_training::SelfTrainingConfig;
+use pi3det_adapt::pipeline::AdaptConfig;
+use pi3det_nn::config::DetectorConfig;
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SuiteFile {
+    name: String,
+    #[serde(default)]
+    seed: u64,
+    detectors: BTreeMap<String, DetectorFile>,
+    datasets: BTreeMap<String, DatasetSpec>,
+    tasks: Vec<TaskSpec>,
+    methods: Vec<MethodSpec>,
+    #[serde(default)]
+    schedule: Schedule,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DetectorFile {
+    /// The detector's config (relative to the suite file).
+    config: PathBuf,
+    /// The Pi3DET-Net config on this detector (`pi3det adapt`'s), for the `pi3det_net` method.
+    pi3det_net: Option<PathBuf>,
+}
+
+/// Where a dataset's frames come from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetSpec {
+    /// Simulated with the embedded simulator.
+    pub sim: Option<SimSpec>,
+    /// A dataset on disk (any format the readers open; relative to the suite file).
+    pub path: Option<PathBuf>,
+    #[serde(default = "train_split")]
+    pub train_split: String,
+    #[serde(default = "val_split")]
+    pub val_split: String,
+}
+
+fn train_split() -> String {
+    "train".into()
+}
+fn val_split() -> String {
+    "val".into()
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimSpec {
+    /// vehicle, drone or quadruped.
+    pub platform: String,
+    /// os1-64 (Pi3DET), nuscenes-32, hdl-64 (KITTI).
+    #[serde(default = "os1")]
+    pub sensor: String,
+    pub sequences: u32,
+    pub val_sequences: u32,
+    pub frames: u32,
+    /// Simulation seed (default: the suite's).
+    pub seed: Option<u64>,
+}
+
+fn os1() -> String {
+    "os1-64".into()
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TaskSpec {
+    pub name: String,
+    pub source: String,
+    pub target: String,
+}
+
+/// The methods of the paper's tables.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MethodKind {
+    SourceOnly,
+    TargetOnly,
+    Combined,
+    St3d,
+    St3dPp,
+    Sn,
+    Redb,
+    Ms3dPp,
+    Pi3detNet,
+}
+
+impl MethodKind {
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::SourceOnly => "Source Only",
+            Self::TargetOnly => "Target Only",
+            Self::Combined => "Combined",
+            Self::St3d => "ST3D",
+            Self::St3dPp => "ST3D++",
+            Self::Sn => "SN",
+            Self::Redb => "REDB",
+            Self::Ms3dPp => "MS3D++",
+            Self::Pi3detNet => "Pi3DET-Net",
+        }
+    }
+
+    /// Methods that train with target labels (upper bounds; not ranked).
+    pub fn uses_target_labels(self) -> bool {
+        matches!(self, Self::TargetOnly | Self::Combined)
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MethodSpec {
+    pub kind: MethodKind,
+    /// Row label (default: the method's name, "w/ ROS" added when `ros`).
+    pub name: Option<String>,
+    /// Random Object Scaling in the source training (ST3D, ST3D++).
+    #[serde(default)]
+    pub ros: bool,
+    /// Self-training settings (ST3D, ST3D++, REDB, MS3D++); absent: the method's defaults.
+    pub self_training: Option<SelfTrainingConfig>,
+    pub redb: Option<RedbConfig>,
+    /// MS3D++: label → self-train rounds.
+    #[serde(default = "one")]
+    pub rounds: usize,
+}
+
+fn one() -> usize {
+    1
+}
+
+impl MethodSpec {
+    pub fn label(&self) -> String {
+        match &self.name {
+            Some(n) => n.clone(),
+            None if self.ros => format!("{} (w/ ROS)", self.kind.label()),
+            None => self.kind.label().to_string(),
+        }
+    }
+
+    /// The label as a folder name.
+    pub fn slug(&self) -> String {
+        slug(&self.label())
+    }
+}
+
+pub fn slug(s: &str) -> String {
+    let mut out = String::new();
+    for c in s.chars() {
+        if c.is_ascii_alphanumeric() {
+            out.push(c.to_ascii_lowercase());
+        } else if c == '+' {
+            out.push('p');
+        } else if !out.ends_with('_') && !out.is_empty() {
+            out.push('_');
+        }
+    }
+    out.trim_end_matches('_').to_string()
+}
+
+/// Training budgets that replace the detector configs' (so a suite sizes every method alike).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Schedule {
+    /// Epochs of source (and target-only, combined, Pi3DET-Net PA) training.
+    pub epochs: Option<usize>,
+    /// Epochs of self-training and of Pi3DET-Net's KA.
+    pub adapt_epochs: Option<usize>,
+    /// At most this many training frames per split (0: all).
+    pub max_train_frames: usize,
+    /// At most this many validation frames (0: all).
+    pub max_val_frames: usize,
+    /// Methods without Virtual Platform Pose see the target's frames shifted in z by the
+    /// difference of the two datasets' median sensor heights (ground-plane fits), so the target's
+    /// ground lies where the source's did — the per-dataset `SHIFT_COOR` of ST3D's and OpenPCDet's
+    /// cross-dataset configs. Off: every frame gets the detector config's `shift_z`.
+    pub match_sensor_height: bool,
+}
+
+/// A checked suite.
+#[derive(Debug, Clone)]
+pub struct Suite {
+    pub name: String,
+    pub seed: u64,
+    pub path: PathBuf,
+    pub detectors: BTreeMap<String, DetectorEntry>,
+    pub datasets: BTreeMap<String, DatasetSpec>,
+    pub tasks: Vec<TaskSpec>,
+    pub methods: Vec<MethodSpec>,
+    pub schedule: Schedule,
+}
+
+#[derive(Debug, Clone)]
+pub struct DetectorEntry {
+    pub config: DetectorConfig,
+    pub pi3det_net: Option<AdaptConfig>,
+}
+
+/// One job: a method with a detector on a task.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct Cell {
+    pub task: String,
+    pub method: usize,
+    pub detector: String,
+}
+
+impl Suite {
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading the suite {}", path.display()))?;
+        Self::from_toml_str(&text, path)
+    }
+
+    /// Parses and checks a suite; relative paths are relative to `path`'s folder.
+    pub fn from_toml_str(text: &str, path: &Path) -> Result<Self> {
+        let f: SuiteFile = toml::from_str(text).with_context(|| format!("suite {}", path.display()))?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let rel = |p: &Path| if p.is_absolute() { p.to_path_buf() } else { dir.join(p) };
+        let ctx = |what: String| format!("suite {}: {what}", path.display());
+        if f.tasks.is_empty() || f.methods.is_empty() || f.detectors.is_empty() {
+            bail!(ctx("needs at least one task, method and detector".into()));
+        }
+        let mut datasets = BTreeMap::new();
+        for (name, d) in &f.datasets {
+            let mut d = d.clone();
+            match (&d.sim, &d.path) {
+                (Some(s), None) => {
+                    if pi3det_data::Platform::parse(&s.platform) == pi3det_data::Platform::Unknown {
+                        bail!(ctx(format!(
+                            "dataset {name}: unknown platform {:?} (vehicle, drone, quadruped)",
+                            s.platform
+                        )));
+                    }
+                    pi3det_sim::SensorPreset::parse(&s.sensor)
+                        .map_err(|e| anyhow::anyhow!(ctx(format!("dataset {name}: {e}"))))?;
+                    if s.sequences <= s.val_sequences || s.val_sequences == 0 || s.frames == 0 {
+                        bail!(ctx(format!("dataset {name}: needs 0 < val_sequences < sequences and frames > 0")));
+                    }
+                }
+                (None, Some(p)) => {
+                    let p = rel(p);
+                    if !p.exists() {
+                        bail!(ctx(format!("dataset {name}: {} does not exist", p.display())));
+                    }
+                    d.path = Some(p);
+                }
+                _ => bail!(ctx(format!("dataset {name}: give exactly one of `sim` and `path`"))),
+            }
+            datasets.insert(name.clone(), d);
+        }
+        let mut names = BTreeSet::new();
+        for t in &f.tasks {
+            if !names.insert(&t.name) || slug(&t.name) != t.name {
+                bail!(ctx(format!("task {:?}: names must be unique and lowercase [a-z0-9_]", t.name)));
+            }
+            for d in [&t.source, &t.target] {
+                if !datasets.contains_key(d) {
+                    bail!(ctx(format!(
+                        "task {}: unknown dataset {d:?} (the suite defines {:?})",
+                        t.name,
+                        datasets.keys().collect::<Vec<_>>()
+                    )));
+                }
+            }
+        }
+        let mut labels = BTreeSet::new();
+        for m in &f.methods {
+            if !labels.insert(m.slug()) {
+                bail!(ctx(format!("method {:?} appears twice (give one a `name`)", m.label())));
+            }
+            if let Some(st) = &m.self_training {
+                st.validate().map_err(|e| anyhow::anyhow!(ctx(format!("method {}: {e}", m.label()))))?;
+            }
+        }
+        let mut detectors = BTreeMap::new();
+        for (name, d) in &f.detectors {
+            if slug(name) != *name {
+                bail!(ctx(format!("detector {name:?}: names must be lowercase [a-z0-9_]")));
+            }
+            let config = DetectorConfig::from_file(&rel(&d.config))
+                .with_context(|| ctx(format!("detector {name}: config {}", rel(&d.config).display())))?;
+            let pi3det_net = match &d.pi3det_net {
+                Some(p) => Some(
+                    AdaptConfig::from_file(&rel(p))
+                        .with_context(|| ctx(format!("detector {name}: pi3det_net {}", rel(p).display())))?,
+                ),
+                None => None,
+            };
+            if pi3det_net.is_none() && f.methods.iter().any(|m| m.kind == MethodKind::Pi3detNet) {
+                bail!(ctx(format!("detector {name}: the pi3det_net method needs a `pi3det_net` config for it")));
+            }
+            detectors.insert(name.clone(), DetectorEntry { config, pi3det_net });
+        }
+        Ok(Self {
+            name: f.name,
+            seed: f.seed,
+            path: path.to_path_buf(),
+            detectors,
+            datasets,
+            tasks: f.tasks,
+            methods: f.methods,
+            schedule: f.schedule,
+        })
+    }
+
+    /// Every cell, in table order (task, method, detector).
+    pub fn cells(&self) -> Vec<Cell> {
+        let mut out = Vec::new();
+        for t in &self.tasks {
+            for m in 0..self.methods.len() {
+                for d in self.detectors.keys() {
+                    out.push(Cell { task: t.name.clone(), method: m, detector: d.clone() });
+                }
+            }
+        }
+        out
+    }
+
+    /// `task/method/detector`.
+    pub fn cell_id(&self, c: &Cell) -> String {
+        format!("{}/{}/{}", c.task, self.methods[c.method].slug(), c.detector)
+    }
+
+    pub fn task(&self, name: &str) -> &TaskSpec {
+        self.tasks.iter().find(|t| t.name == name).expect("a checked suite's task")
+    }
+}
+
+/// `i/N` (1-based): the cells whose position in table order is `i − 1` modulo `N`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    pub index: usize,
+    pub count: usize,
+}
+
+impl std::str::FromStr for Shard {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let (i, n) = s.split_once('/').ok_or_else(|| format!("--shard {s:?}: expected i/N, e.g. 1/4"))?;
+        let (i, n): (usize, usize) = (
+            i.trim().parse().map_err(|_| format!("--shard {s:?}: i is not a number"))?,
+            n.trim().parse().map_err(|_| format!("--shard {s:?}: N is not a number"))?,
+        );
+        if n == 0 || i == 0 || i > n {
+            return Err(format!("--shard {s:?}: need 1 ≤ i ≤ N"));
+        }
+        Ok(Self { index: i - 1, count: n })
+    }
+}
+
+impl Shard {
+    pub fn take<T: Clone>(&self, items: &[T]) -> Vec<T> {
+        items.iter().enumerate().filter(|(k, _)| k % self.count == self.index).map(|(_, c)| c.clone()).collect()
+    }
+}
+
+/// Whether `id` matches one of `patterns` (`*` matches any run of characters, also `/`).
+pub fn matches_any(id: &str, patterns: &[String]) -> bool {
+    patterns.iter().any(|p| glob(p.as_bytes(), id.as_bytes()))
+}
+
+fn glob(p: &[u8], s: &[u8]) -> bool {
+    match p.split_first() {
+        None => s.is_empty(),
+        Some((b'*', rest)) => (0..=s.len()).any(|k| glob(rest, &s[k..])),
+        Some((c, rest)) => s.split_first().is_some_and(|(d, srest)| c == d && glob(rest, srest)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shards_cover_every_cell_once() {
+        let cells: Vec<usize> = (0..23).collect();
+        for n in 1..6 {
+            let mut seen: Vec<usize> =
+                (1..=n).flat_map(|i| format!("{i}/{n}").parse::<Shard>().unwrap().take(&cells)).collect();
+            seen.sort_unstable();
+            assert_eq!(seen, cells, "N = {n}");
+        }
+        for bad in ["0/2", "3/2", "1", "a/b", "1/0"] {
+            assert!(bad.parse::<Shard>().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn globs_and_slugs() {
+        assert!(matches_any("v2d/st3d/pp", &["v2d/*".into()]));
+        assert!(matches_any("v2d/st3d/pp", &["*/st3d/*".into()]));
+        assert!(!matches_any("v2d/st3d_w_ros/pp", &["*/st3d/*".into()]));
+        assert!(matches_any("v2d/st3d/pp", &["v2d/st3d/pp".into()]));
+        assert_eq!(slug("ST3D++ (w/ ROS)"), "st3dpp_w_ros");
+        assert_eq!(slug("Pi3DET-Net"), "pi3det_net");
+    }
+}

@@ -1,0 +1,148 @@
+//! `pi3det bench suite` on a tiny simulated suite: every method runs to a result, the tables are
+//! written, a second run skips finished cells and reruns only a changed one, the shards of a
+//! suite cover it once and, merged, give the table of one unsharded run; a failing cell is
+//! reported and does not stop the others; bad suites are refused naming what is wrong.
+
+mod common;
+
+use std::path::Path;
+
+use common::{aps, args, write_suite, TORCH_RNG};
+use pi3det_cli_torch::benchmark::suite::Suite;
+use pi3det_cli_torch::benchmark::table::Status;
+use pi3det_cli_torch::benchmark::{self, BenchmarkArgs};
+
+fn modified(out: &Path, cell: &str) -> std::time::SystemTime {
+    std::fs::metadata(out.join("cells").join(cell).join("result.json")).unwrap().modified().unwrap()
+}
+
+#[test]
+fn every_method_runs_resumes_and_shards_merge_to_one_run() {
+    let _turn = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let all = ["source_only", "target_only", "combined", "sn", "st3d", "st3d_pp", "redb", "ms3d_pp", "pi3det_net"];
+    let suite = write_suite(dir.path(), &all, 1);
+    let out = dir.path().join("a");
+    let results = benchmark::run(&args(&suite, &out)).unwrap();
+    assert_eq!(results.len(), all.len());
+    for r in &results {
+        assert_eq!(r.status, Status::Done, "{}: {:?}", r.id, r.error);
+        let ap = r.ap.as_ref().unwrap();
+        assert!(ap.frames > 0 && ap.get("Car").is_some(), "{}: {ap:?}", r.id);
+    }
+    // Self-training methods logged their pseudo-labels' quality against the target's ground truth.
+    let st3d = results.iter().find(|r| r.id == "v2q/st3d/tiny").unwrap();
+    assert!(
+        !st3d.pseudo_labels.is_empty() && st3d.pseudo_labels[0]["quality"].as_array().is_some_and(|q| !q.is_empty())
+    );
+    for f in ["benchmark.md", "benchmark.csv", "benchmark.json", "gap_closed.png"] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    let md = std::fs::read_to_string(out.join("benchmark.md")).unwrap();
+    for label in ["Source Only", "ST3D++", "REDB", "MS3D++", "Pi3DET-Net", "Target Only †", "Combined †", "SN"] {
+        assert!(md.contains(&format!("| {label} |")), "{label} in\n{md}");
+    }
+
+    // A second run skips every finished cell; changing one method reruns that cell only.
+    let before: Vec<_> = ["v2q__source_only__tiny", "v2q__st3d__tiny"].iter().map(|c| modified(&out, c)).collect();
+    benchmark::run(&args(&suite, &out)).unwrap();
+    assert_eq!(modified(&out, "v2q__source_only__tiny"), before[0]);
+    assert_eq!(modified(&out, "v2q__st3d__tiny"), before[1]);
+    let suite2 = write_suite(dir.path(), &all, 2);
+    let again = benchmark::run(&args(&suite2, &out)).unwrap();
+    assert_eq!(modified(&out, "v2q__source_only__tiny"), before[0], "unchanged cells are skipped");
+    assert_ne!(modified(&out, "v2q__st3d__tiny"), before[1], "the changed cell ran again");
+    assert_eq!(again.len(), all.len());
+
+    // Shards: two machines, then a merge, give the unsharded table.
+    let few = ["source_only", "st3d", "ms3d_pp"];
+    let sub = tempfile::tempdir().unwrap();
+    let suite = write_suite(sub.path(), &few, 1);
+    let whole = benchmark::run(&args(&suite, &sub.path().join("whole"))).unwrap();
+    let mut parts = Vec::new();
+    for i in 1..=2 {
+        let o = sub.path().join(format!("shard{i}"));
+        let a = BenchmarkArgs { shard: Some(format!("{i}/2").parse().unwrap()), ..args(&suite, &o) };
+        benchmark::run(&a).unwrap();
+        parts.push(o);
+    }
+    let s = Suite::from_file(&suite).unwrap();
+    let n: Vec<usize> = parts.iter().map(|p| benchmark::collect(&s, p).len()).collect();
+    assert_eq!(n, vec![2, 1], "shard 1/2 takes cells 1 and 3, 2/2 cell 2");
+    let merged = benchmark::run(&BenchmarkArgs { merge: parts, ..args(&suite, &sub.path().join("merged")) }).unwrap();
+    assert_eq!(aps(&merged), aps(&whole));
+}
+
+#[test]
+fn a_failing_cell_is_reported_and_the_others_run() {
+    let _turn = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let suite = write_suite(dir.path(), &["source_only", "target_only"], 1);
+    // The target's validation split vanishes after the suite was checked: only cells that read it fail.
+    let out = dir.path().join("out");
+    let mut a = args(&suite, &out);
+    a.only = vec!["v2q/source_only/*".into()];
+    benchmark::run(&a).unwrap();
+    let data = std::fs::read_dir(out.join("data"))
+        .unwrap()
+        .flatten()
+        .find(|e| e.file_name().to_string_lossy().starts_with("quad_"))
+        .unwrap();
+    std::fs::remove_file(data.path().join("quadruped/val/pi3det_infos_val.pkl")).unwrap();
+    let results = benchmark::run(&BenchmarkArgs { force: true, ..args(&suite, &out) }).unwrap();
+    assert!(results.iter().all(|r| r.status == Status::Failed), "{results:?}");
+    let md = std::fs::read_to_string(out.join("benchmark.md")).unwrap();
+    assert!(md.contains("## Failed cells") && md.contains("v2q/target_only/tiny"), "{md}");
+    let log = std::fs::read_to_string(out.join("cells/v2q__target_only__tiny/log.txt")).unwrap();
+    assert!(log.contains("FAILED"), "{log}");
+}
+
+#[test]
+fn bad_suites_are_refused_naming_the_problem() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = std::fs::read_to_string(write_suite(dir.path(), &["source_only", "pi3det_net"], 1)).unwrap();
+    let path = dir.path().join("suite.toml");
+    let check = |text: String, want: &str| {
+        let e = format!("{:#}", Suite::from_toml_str(&text, &path).unwrap_err());
+        assert!(e.contains(want), "want {want:?} in {e}");
+    };
+    check(good.replace("kind = \"source_only\"", "kind = \"st4d\""), "st4d");
+    check(good.replace("target = \"quad\"", "target = \"drone\""), "unknown dataset \"drone\"");
+    check(
+        good.replace(
+            "sim = { platform = \"vehicle\", sequences = 2, val_sequences = 1, frames = 3 }",
+            "path = \"nowhere\"",
+        ),
+        "nowhere",
+    );
+    check(good.replace("config = \"det.toml\"", "config = \"missing.toml\""), "missing.toml");
+    check(good.replace("pi3det_net = \"net.toml\"\n", ""), "pi3det_net");
+    check(good.replace("platform = \"vehicle\"", "platform = \"boat\""), "boat");
+    check(good.replace("[[methods]]\nkind = \"pi3det_net\"", "[[methods]]\nkind = \"source_only\""), "appears twice");
+    assert!(Suite::from_toml_str(&good, &path).is_ok());
+}
+
+#[test]
+fn shipped_suites_parse() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/benchmark");
+    let mini = Suite::from_file(&dir.join("mini.toml")).unwrap();
+    assert_eq!(mini.cells().len(), 2 * 5);
+    let paper = Suite::from_file(&dir.join("paper.toml")).unwrap();
+    assert_eq!((paper.tasks.len(), paper.methods.len()), (8, 11));
+    assert_eq!(paper.cells().len(), 88);
+}
+
+/// Two runs sharing an output folder never run one cell at once: the second leaves a cell whose
+/// lock the first holds.
+#[test]
+fn a_cell_locked_by_another_run_is_left_to_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let suite = write_suite(dir.path(), &["source_only"], 1);
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(out.join("cells")).unwrap();
+    let held = std::fs::File::create(out.join("cells/v2q__source_only__tiny.lock")).unwrap();
+    held.lock().unwrap();
+    let results = benchmark::run(&args(&suite, &out)).unwrap();
+    assert!(results.is_empty(), "{results:?}");
+    assert!(!out.join("cells/v2q__source_only__tiny").exists());
+}
