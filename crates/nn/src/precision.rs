@@ -18,7 +18,7 @@ use tch::{Device, Kind, Tensor};
 
 /// The BEV network's compute precision (`precision` at the top of a detector config).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "snake_case")]
 pub enum Precision {
     #[default]

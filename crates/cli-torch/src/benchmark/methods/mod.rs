@@ -2,6 +2,16 @@
 //! target validation split. Artifacts several cells share — simulated data, a source model, a
 //! Pi3DET-Net Pre-Adaptation — are made once per output folder under `data/` and `shared/`,
 //! each keyed by the full text of what made it, so a changed config never reuses a stale one.
+//!
+//! One file per method: [`reference`] (source-only, target-only, combined), [`sn`], [`st3d`]
+//! (ST3D, ST3D++ and REDB, whose selection is [`redb`]), [`ms3d_pp`], [`pi3det_net`].
+
+mod ms3d_pp;
+mod pi3det_net;
+mod redb;
+mod reference;
+mod sn;
+mod st3d;
 
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -11,7 +21,7 @@ use std::sync::Arc;
 use crate::open_subset;
 use anyhow::{bail, Context, Result};
 use pi3det_adapt::baselines::memory::MemoryConfig;
-use pi3det_adapt::baselines::redb::{self, Candidate};
+use pi3det_adapt::baselines::redb::Candidate;
 use pi3det_adapt::baselines::self_training::{SelfTraining, SelfTrainingConfig, SelfTrainingReport};
 use pi3det_adapt::pipeline::{self as adapt, AdaptOptions};
 use pi3det_adapt::pseudo_labels;
@@ -28,7 +38,7 @@ use pi3det_nn::preprocess::Preprocessor;
 use pi3det_nn::roi_heads::ScoreFusion;
 use pi3det_nn::{checkpoint, train, Detector};
 
-use super::suite::{Cell, DatasetSpec, MethodKind, MethodSpec, Suite};
+use super::suite::{Cell, DatasetSpec, DetectorEntry, MethodKind, MethodSpec, Suite, TaskSpec};
 use crate::autolabel::{detect_in_view, ensemble, EnsembleOptions, View};
 
 /// A cell's log: every line to `log.txt` and to stderr.
@@ -316,22 +326,52 @@ fn log_rounds(log: &mut Log, r: &SelfTrainingReport) {
     log.line(format!("  self-training: {} steps, {:.0} s", r.steps, r.seconds));
 }
 
-/// Mean box size per class of a split's labels.
-fn mean_sizes(infos: &[FrameInfo], cfg: &DetectorConfig) -> BTreeMap<String, ([f64; 3], usize)> {
-    let mut m: BTreeMap<String, ([f64; 3], usize)> = BTreeMap::new();
-    for o in infos.iter().flat_map(|i| &i.objects) {
-        if let Some(k) = cfg.class_index(&o.name) {
-            let e = m.entry(cfg.classes[k].clone()).or_insert(([0.0; 3], 0));
-            e.0[0] += o.box3d.dx;
-            e.0[1] += o.box3d.dy;
-            e.0[2] += o.box3d.dz;
-            e.1 += 1;
-        }
+/// What every method's run gets: the cell, its task's data and the detector config it starts from.
+pub(super) struct CellRun<'a> {
+    ctx: &'a Ctx<'a>,
+    cell: &'a Cell,
+    task: &'a TaskSpec,
+    method: &'a MethodSpec,
+    entry: &'a DetectorEntry,
+    /// The cell's detector with the suite's schedule.
+    base: DetectorConfig,
+    /// `base` with Random Object Scaling first when the method asks for it (ST3D's source model).
+    with_ros: DetectorConfig,
+    val: Subset,
+    target: Subset,
+    target_infos: Vec<FrameInfo>,
+    /// The `shift_z` that puts the target's frames where the source's were (height matching).
+    target_shift: f64,
+    dir: &'a Path,
+    device: tch::Device,
+    adapt_epochs: Option<usize>,
+}
+
+impl CellRun<'_> {
+    /// `det` on the target's validation split (detections in the cell's folder).
+    fn eval(&self, det: &Detector, log: &mut Log) -> Result<ApSummary> {
+        let prep = Arc::new(Preprocessor::new(det.cfg())?);
+        let ap = adapt::evaluate(det, prep, &self.val, &self.dir.join("val_detections.jsonl"))?;
+        log.line(format!("target val ({} frames): {}", self.val.len(), ap.one_line()));
+        Ok(ap)
     }
-    for (s, n) in m.values_mut() {
-        s.iter_mut().for_each(|v| *v /= (*n).max(1) as f64);
+
+    /// The source model trained with `cfg` (shared between the cells that train the same).
+    fn source_model(&self, cfg: &DetectorConfig, log: &mut Log) -> Result<PathBuf> {
+        let what = if self.method.ros { "source_ros" } else { "source" };
+        self.ctx.trained(
+            &format!("{what}_{}_{}", self.task.source, self.cell.detector),
+            cfg,
+            &[&self.task.source],
+            None,
+            log,
+        )
     }
-    m
+
+    /// `cfg` for the target's frames.
+    fn on_target(&self, cfg: &DetectorConfig) -> DetectorConfig {
+        DetectorConfig { shift_z: self.target_shift, ..cfg.clone() }
+    }
 }
 
 /// Runs one cell in `dir` (its folder, empty).
@@ -343,22 +383,10 @@ pub fn run_cell(ctx: &Ctx<'_>, cell: &Cell, dir: &Path, log: &mut Log) -> Result
     let base = ctx.scheduled(&entry.config);
     let val = ctx.split(&task.target, false, log)?;
     let target = ctx.split(&task.target, true, log)?;
-    let device = ctx.device;
-    let adapt_epochs = suite.schedule.adapt_epochs;
-    let eval = |det: &Detector, log: &mut Log| -> Result<ApSummary> {
-        let prep = Arc::new(Preprocessor::new(det.cfg())?);
-        let ap = adapt::evaluate(det, prep, &val, &dir.join("val_detections.jsonl"))?;
-        log.line(format!("target val ({} frames): {}", val.len(), ap.one_line()));
-        Ok(ap)
-    };
     let mut with_ros = base.clone();
     if method.ros {
         with_ros.train.augment.insert(0, AugmentConfig::RandomObjectScaling(RandomObjectScalingConfig::default()));
     }
-    let source_model = |cfg: &DetectorConfig, log: &mut Log| -> Result<PathBuf> {
-        let what = if method.ros { "source_ros" } else { "source" };
-        ctx.trained(&format!("{what}_{}_{}", task.source, cell.detector), cfg, &[&task.source], None, log)
-    };
     let target_infos = target.infos()?;
     let target_shift = if suite.schedule.match_sensor_height {
         let source = ctx.split(&task.source, true, log)?;
@@ -370,252 +398,31 @@ pub fn run_cell(ctx: &Ctx<'_>, cell: &Cell, dir: &Path, log: &mut Log) -> Result
     } else {
         base.shift_z
     };
-    // A config whose frames are the target's.
-    let on_target = |cfg: &DetectorConfig| DetectorConfig { shift_z: target_shift, ..cfg.clone() };
-    let mut outcome = Outcome::default();
+    let c = CellRun {
+        ctx,
+        cell,
+        task,
+        method,
+        entry,
+        base,
+        with_ros,
+        val,
+        target,
+        target_infos,
+        target_shift,
+        dir,
+        device: ctx.device,
+        adapt_epochs: suite.schedule.adapt_epochs,
+    };
     match method.kind {
-        MethodKind::SourceOnly => {
-            let ck = source_model(&base, log)?;
-            outcome.ap = eval(&load(&ck, Some(&on_target(&base)), device)?, log)?;
-        }
-        MethodKind::TargetOnly => {
-            let cfg = on_target(&base);
-            let ck =
-                ctx.trained(&format!("target_{}_{}", task.target, cell.detector), &cfg, &[&task.target], None, log)?;
-            outcome.ap = eval(&load(&ck, None, device)?, log)?;
-        }
-        MethodKind::Combined => {
-            // One config for both domains' frames: the detector's own shift (no height matching).
-            let name = format!("combined_{}_{}_{}", task.source, task.target, cell.detector);
-            let ck = ctx.trained(&name, &base, &[&task.source, &task.target], None, log)?;
-            outcome.ap = eval(&load(&ck, None, device)?, log)?;
-        }
-        MethodKind::Sn => {
-            let source = ctx.split(&task.source, true, log)?;
-            let (s, t) = (mean_sizes(&source.infos()?, &base), mean_sizes(&target_infos, &base));
-            let mut sn = StatisticalNormalizationConfig::default();
-            for (class, (ts, _)) in &t {
-                if let Some((ss, _)) = s.get(class) {
-                    sn.size_delta_m.insert(class.clone(), [ts[0] - ss[0], ts[1] - ss[1], ts[2] - ss[2]]);
-                }
-            }
-            log.line(format!("SN: size shift target − source per class {:?}", sn.size_delta_m));
-            let mut cfg = base.clone();
-            cfg.train.augment.insert(0, AugmentConfig::StatisticalNormalization(sn));
-            let ck = ctx.trained(
-                &format!("sn_{}_{}_{}", task.source, task.target, cell.detector),
-                &cfg,
-                &[&task.source],
-                None,
-                log,
-            )?;
-            outcome.ap = eval(&load(&ck, Some(&on_target(&cfg)), device)?, log)?;
-        }
-        MethodKind::St3d | MethodKind::St3dPp | MethodKind::Redb => {
-            let ck = source_model(&with_ros, log)?;
-            let pp = method.kind == MethodKind::St3dPp;
-            // ST3D++ ranks pseudo-labels by its hybrid score (no weights involved: same checkpoint).
-            let mut cfg = with_ros.clone();
-            if pp {
-                if let Some(r) = cfg.roi_head.as_mut() {
-                    r.score_fusion = ScoreFusion::Hybrid;
-                }
-            }
-            let mut det = load(&ck, Some(&on_target(&cfg)), device)?;
-            let st = self_training_config(method, adapt_epochs);
-            let source = if st.source_assisted {
-                let s = ctx.split(&task.source, true, log)?;
-                let prep = Arc::new(Preprocessor::new(&cfg)?);
-                let (augments, _) = train::build_augments(&prep, &s)?;
-                Some(pi3det_adapt::ka::DomainData { subset: s, prep, augments: Arc::new(augments) })
-            } else {
-                None
-            };
-            let labels_cfg = st.labels.clone();
-            let redb_cfg = method.redb.clone().unwrap_or_default();
-            let kind = method.kind;
-            let target_ref = &target;
-            let mut labeller = |d: &Detector| -> pi3det_nn::Result<Vec<FrameDetections>> {
-                let prep = Arc::new(Preprocessor::new(d.cfg())?);
-                let labels = pseudo_labels::generate(d, prep, target_ref, &labels_cfg, &mut |_, _| {})?;
-                if kind != MethodKind::Redb {
-                    return Ok(labels);
-                }
-                redb_select(d, target_ref, labels, labels_cfg.positive_score, &redb_cfg)
-            };
-            let runner =
-                SelfTraining { config: st, source, target: target.clone(), target_gt: Some(&target_infos), device };
-            let r = runner.run(&mut det, &mut labeller, &dir.join("self_training"), &mut |_| {})?;
-            log_rounds(log, &r);
-            outcome.pseudo_labels = rounds_json(&r);
-            outcome.ap = eval(&det, log)?;
-        }
-        MethodKind::Ms3dPp => {
-            let ck = source_model(&with_ros, log)?;
-            let mut det = load(&ck, Some(&on_target(&with_ros)), device)?;
-            let st = self_training_config(method, adapt_epochs);
-            let mut checkpoints = vec![ck.clone()];
-            for round in 0..method.rounds.max(1) {
-                let views = [
-                    View { flip_y: false, yaw_rad: 0.0 },
-                    View { flip_y: true, yaw_rad: 0.0 },
-                    View { flip_y: false, yaw_rad: 15f64.to_radians() },
-                    View { flip_y: false, yaw_rad: -15f64.to_radians() },
-                ];
-                let fusion = FusionConfig::default();
-                let tracking = TrackingConfig::default();
-                let e = ensemble(
-                    &EnsembleOptions {
-                        subset: &target,
-                        infos: &target_infos,
-                        checkpoints: &checkpoints,
-                        views: &views,
-                        level: pi3det_nn::preprocess::Level::Off,
-                        shift_z: Some(target_shift),
-                        fusion,
-                        min_members: None,
-                        tracking: &tracking,
-                        frame_rate: Some(10.0),
-                        min_score: st.labels.ignore_score,
-                        batch_size: 4,
-                        device,
-                        // The checkpoints' own: they were trained by this benchmark.
-                        precision: None,
-                    },
-                    &mut |_, _| Ok(()),
-                )?;
-                log.line(format!(
-                    "MS3D++ round {}: {} inputs → {} fused → {} tracked → {} labels",
-                    round + 1,
-                    e.inputs.len(),
-                    e.fused.num_boxes(),
-                    e.tracked.labels.num_boxes(),
-                    e.final_labels.num_boxes()
-                ));
-                let fixed: Vec<FrameDetections> = target_infos
-                    .iter()
-                    .map(|info| FrameDetections {
-                        info: info.clone(),
-                        objects: e.final_labels.frames.get(&info.id).cloned().unwrap_or_default(),
-                    })
-                    .collect();
-                let mut labeller = |_: &Detector| -> pi3det_nn::Result<Vec<FrameDetections>> { Ok(fixed.clone()) };
-                let runner = SelfTraining {
-                    config: st.clone(),
-                    source: None,
-                    target: target.clone(),
-                    target_gt: Some(&target_infos),
-                    device,
-                };
-                let round_dir = dir.join(format!("round_{}", round + 1));
-                let r = runner.run(&mut det, &mut labeller, &round_dir, &mut |_| {})?;
-                log_rounds(log, &r);
-                outcome.pseudo_labels.extend(rounds_json(&r));
-                checkpoints.push(round_dir.join("final.safetensors"));
-            }
-            outcome.ap = eval(&det, log)?;
-        }
-        MethodKind::Pi3detNet => {
-            let mut cfg = entry.pi3det_net.clone().expect("a checked suite has the pi3det_net config");
-            cfg.detector = ctx.scheduled(&cfg.detector);
-            if let Some(e) = adapt_epochs {
-                cfg.ka.epochs = e;
-            }
-            let pa = ctx.trained(
-                &format!("pa_{}_{}", task.source, cell.detector),
-                &cfg.detector,
-                &[&task.source],
-                Some("pa"),
-                log,
-            )?;
-            let source = ctx.split(&task.source, true, log)?;
-            let mut msgs = Vec::new();
-            let report = adapt::run(
-                AdaptOptions {
-                    config: cfg,
-                    source,
-                    target: target.clone(),
-                    val: Some(val.clone()),
-                    out_dir: dir.join("adapt"),
-                    device,
-                    pa_ckpt: Some(pa),
-                    resume: false,
-                    stop_after: None,
-                    source_only: None,
-                    vpp_diagnostics: true,
-                },
-                &mut |e| match e {
-                    adapt::AdaptEvent::Message(m) => msgs.push(m),
-                    adapt::AdaptEvent::Stage(s) => msgs.push(format!("stage: {s}")),
-                    adapt::AdaptEvent::KaEpoch(k) => {
-                        msgs.push(format!("  KA epoch {} loss {:.3} ({:.0} s)", k.epoch + 1, k.mean_loss, k.seconds))
-                    }
-                    _ => {}
-                },
-            )?;
-            for m in msgs {
-                log.line(m);
-            }
-            if let Some(s) = &report.source_only {
-                log.line(format!("PA model on target val: {}", s.one_line()));
-            }
-            outcome.pseudo_labels =
-                report.pseudo_label_quality.iter().map(|q| serde_json::to_value(q).unwrap_or_default()).collect();
-            outcome.ap = report.adapted.clone().context("the adaptation run gave no evaluation")?;
-            log.line(format!("target val ({} frames): {}", val.len(), outcome.ap.one_line()));
-        }
+        MethodKind::SourceOnly => reference::source_only(&c, log),
+        MethodKind::TargetOnly => reference::target_only(&c, log),
+        MethodKind::Combined => reference::combined(&c, log),
+        MethodKind::Sn => sn::run(&c, log),
+        MethodKind::St3d | MethodKind::St3dPp | MethodKind::Redb => st3d::run(&c, log),
+        MethodKind::Ms3dPp => ms3d_pp::run(&c, log),
+        MethodKind::Pi3detNet => pi3det_net::run(&c, log),
     }
-    Ok(outcome)
-}
-
-/// REDB's selection over `labels` (positives only; the rest stay in the ignored band):
-/// examination by the mirrored view, points per box from the frames, then [`redb::select`].
-fn redb_select(
-    det: &Detector,
-    target: &Subset,
-    mut labels: Vec<FrameDetections>,
-    positive: f64,
-    cfg: &redb::RedbConfig,
-) -> pi3det_nn::Result<Vec<FrameDetections>> {
-    let prep = Preprocessor::new(det.cfg())?;
-    let mirrored = detect_in_view(det, prep, target, View { flip_y: true, yaw_rad: 0.0 }, 4)
-        .map_err(|e| pi3det_nn::NnError::Input(format!("REDB examination: {e:#}")))?;
-    let mut cands = Vec::new();
-    let mut slots = Vec::new();
-    for (fi, (f, m)) in labels.iter().zip(&mirrored).enumerate() {
-        let positives: Vec<usize> =
-            (0..f.objects.len()).filter(|&k| f.objects[k].score.unwrap_or(1.0) >= positive).collect();
-        if positives.is_empty() {
-            continue;
-        }
-        let frame = target.dataset.load(target.indices[fi]).map_err(pi3det_nn::NnError::from)?;
-        let pts: Vec<[f64; 3]> = frame.points.xyz_f64().collect();
-        for k in positives {
-            let o: &Object = &f.objects[k];
-            let examination_iou = m
-                .objects
-                .iter()
-                .filter(|x| x.name == o.name)
-                .map(|x| pi3det_geometry::iou_3d(&x.box3d, &o.box3d))
-                .fold(0.0, f64::max);
-            let points = pts.iter().filter(|p| o.box3d.contains(**p)).count();
-            cands.push(Candidate {
-                class: det.cfg().class_index(&o.name).unwrap_or(0),
-                score: o.score.unwrap_or(1.0),
-                examination_iou,
-                range_m: o.box3d.x.hypot(o.box3d.y),
-                points,
-            });
-            slots.push((fi, k));
-        }
-    }
-    let keep = redb::select(&cands, cfg);
-    for ((fi, k), kept) in slots.into_iter().zip(keep) {
-        if !kept {
-            labels[fi].objects[k].score = Some(0.0);
-        }
-    }
-    Ok(labels)
 }
 
 #[cfg(test)]

@@ -1,0 +1,55 @@
+//! Pi3DET-Net (the paper's §4): Pre-Adaptation on the source, then `pi3det_adapt::pipeline`
+//! (pseudo-labels through VPP, Knowledge-Adaptation, the guard).
+
+use super::*;
+
+/// Pi3DET-Net: PA (shared between cells), then the adaptation stages on the target.
+pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
+    let CellRun { ctx, task, cell, entry, val, target, dir, .. } = c;
+    let device = c.device;
+    let adapt_epochs = c.adapt_epochs;
+    let mut outcome = Outcome::default();
+    let mut cfg = entry.pi3det_net.clone().expect("a checked suite has the pi3det_net config");
+    cfg.detector = ctx.scheduled(&cfg.detector);
+    if let Some(e) = adapt_epochs {
+        cfg.ka.epochs = e;
+    }
+    let pa =
+        ctx.trained(&format!("pa_{}_{}", task.source, cell.detector), &cfg.detector, &[&task.source], Some("pa"), log)?;
+    let source = ctx.split(&task.source, true, log)?;
+    let mut msgs = Vec::new();
+    let report = adapt::run(
+        AdaptOptions {
+            config: cfg,
+            source,
+            target: target.clone(),
+            val: Some(val.clone()),
+            out_dir: dir.join("adapt"),
+            device,
+            pa_ckpt: Some(pa),
+            resume: false,
+            stop_after: None,
+            source_only: None,
+            vpp_diagnostics: true,
+        },
+        &mut |e| match e {
+            adapt::AdaptEvent::Message(m) => msgs.push(m),
+            adapt::AdaptEvent::Stage(s) => msgs.push(format!("stage: {s}")),
+            adapt::AdaptEvent::KaEpoch(k) => {
+                msgs.push(format!("  KA epoch {} loss {:.3} ({:.0} s)", k.epoch + 1, k.mean_loss, k.seconds))
+            }
+            _ => {}
+        },
+    )?;
+    for m in msgs {
+        log.line(m);
+    }
+    if let Some(s) = &report.source_only {
+        log.line(format!("PA model on target val: {}", s.one_line()));
+    }
+    outcome.pseudo_labels =
+        report.pseudo_label_quality.iter().map(|q| serde_json::to_value(q).unwrap_or_default()).collect();
+    outcome.ap = report.adapted.clone().context("the adaptation run gave no evaluation")?;
+    log.line(format!("target val ({} frames): {}", val.len(), outcome.ap.one_line()));
+    Ok(outcome)
+}
