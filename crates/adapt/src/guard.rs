@@ -70,7 +70,7 @@ impl GuardConfig {
         if ok {
             Ok(())
         } else {
-            Err(NnError::Config(format!(
+            Err(NnError::config("guard", format!(
                 "guard: need warn_positives_per_frame ≥ 0, score in [0, 1), match_iou in (0, 1] and min_retention in [0, 1] (got {self:?})"
             )))
         }

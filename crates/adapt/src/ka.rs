@@ -46,7 +46,7 @@ impl Default for KaConfig {
 impl KaConfig {
     pub fn validate(&self) -> Result<()> {
         if self.epochs == 0 || !(self.lr.is_finite() && self.lr > 0.0) {
-            return Err(NnError::Config(format!("ka: epochs must be positive and lr > 0 (got {self:?})")));
+            return Err(NnError::config("ka", format!("ka: epochs must be positive and lr > 0 (got {self:?})")));
         }
         Ok(())
     }

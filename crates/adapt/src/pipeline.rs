@@ -109,12 +109,12 @@ impl AdaptConfig {
     /// The file with `--set` overrides applied before it is read.
     pub fn from_file_with(path: &Path, overrides: &[ConfigOverride]) -> Result<Self> {
         let cfg: Self = read_config(path, overrides)?;
-        cfg.validate().map_err(|e| NnError::ConfigFile { path: path.to_path_buf(), message: e.to_string() })?;
+        cfg.validate().map_err(|e| NnError::InvalidConfigFile { path: path.to_path_buf(), source: Box::new(e) })?;
         Ok(cfg)
     }
 
     pub fn from_toml_str(s: &str) -> Result<Self> {
-        let cfg: Self = toml::from_str(s).map_err(|e| NnError::Config(e.to_string()))?;
+        let cfg: Self = toml::from_str(s)?;
         cfg.validate()?;
         Ok(cfg)
     }
@@ -875,11 +875,7 @@ mod tests {
             let voxel = name.contains("voxel");
             assert_eq!(d.backbone_3d.is_some(), voxel, "{name}");
             assert_eq!(d.roi_head.as_ref().is_some_and(|r| r.voxel_pool.is_some()), voxel, "{name}");
-            assert!(d
-                .train
-                .augment
-                .iter()
-                .any(|a| matches!(a, pi3det_nn::augment::AugmentConfig::RandomPlatformJitter(_))));
+            assert!(d.train.augment.iter().any(|a| matches!(a, AugmentConfig::RandomPlatformJitter(_))));
         }
     }
 
@@ -896,7 +892,7 @@ mod tests {
         other.pfa.as_mut().unwrap().kl_into_encoder = false;
         other.precision = pi3det_nn::precision::Precision::Bf16;
         other.channels_last = !base.channels_last;
-        if let Some(pi3det_nn::necks::NeckConfig::Gtd(g)) = other.neck.as_mut() {
+        if let Some(NeckConfig::Gtd(g)) = other.neck.as_mut() {
             g.rotation_weight = 1.0;
         }
         check_architecture(p, &base, &other).unwrap();

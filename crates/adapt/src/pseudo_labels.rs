@@ -41,10 +41,13 @@ impl Default for PseudoLabelConfig {
 impl PseudoLabelConfig {
     pub fn validate(&self) -> Result<()> {
         if !(0.0 <= self.ignore_score && self.ignore_score <= self.positive_score && self.positive_score < 1.0) {
-            return Err(NnError::Config(format!(
-                "pseudo_labels: need 0 ≤ ignore_score ≤ positive_score < 1 (got {} and {})",
-                self.ignore_score, self.positive_score
-            )));
+            return Err(NnError::config(
+                "pseudo_labels",
+                format!(
+                    "pseudo_labels: need 0 ≤ ignore_score ≤ positive_score < 1 (got {} and {})",
+                    self.ignore_score, self.positive_score
+                ),
+            ));
         }
         Ok(())
     }

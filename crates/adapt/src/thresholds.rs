@@ -49,9 +49,12 @@ impl AdaptiveThresholdConfig {
         if ok {
             Ok(())
         } else {
-            Err(NnError::Config(format!(
+            Err(NnError::config(
+                "adaptive_thresholds",
+                format!(
                 "adaptive_thresholds: need min_positives_per_frame ≥ 0, quantile in [0, 1], margin ≥ 0 (got {self:?})"
-            )))
+            ),
+            ))
         }
     }
 }

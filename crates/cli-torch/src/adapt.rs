@@ -46,9 +46,10 @@ pub struct AdaptArgs {
     /// At most this many frames of each split, spread evenly (0: all).
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub max_frames: usize,
-    /// Override PA's epochs (the detector's `train.epochs`) and KA's epochs.
+    /// Override PA's epochs (the detector's `train.epochs`).
     #[arg(long)]
     pub pa_epochs: Option<usize>,
+    /// Override KA's epochs (`ka.epochs`).
     #[arg(long)]
     pub ka_epochs: Option<usize>,
     /// Leave out the VPP diagnostics: evaluating the PA model through VPP and scoring

@@ -152,7 +152,10 @@ pub fn bench_sparse(
     dense_limit_gib: f64,
 ) -> Result<Vec<SparseBenchRow>> {
     let Some(Backbone3dConfig::VoxelBackbone8x(bb_cfg)) = &cfg.backbone_3d else {
-        return Err(NnError::Config(format!("{}: bench sparse needs a [backbone_3d] (a voxel detector)", cfg.name)));
+        return Err(NnError::config(
+            "backbone_3d",
+            format!("{}: bench sparse needs a [backbone_3d] (a voxel detector)", cfg.name),
+        ));
     };
     let vs = tch::nn::VarStore::new(device);
     let bb = bb_cfg.init(vs.root(), 4, &cfg.batch_norm);

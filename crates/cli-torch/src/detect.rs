@@ -199,7 +199,7 @@ fn switch<T: Default>(fit: &mut Option<T>, on: Option<bool>) {
 /// fits and test-time augmentation apply to any checkpoint.
 fn read_post(path: &std::path::Path) -> Result<pi3det_nn::config::PostConfig> {
     let text = std::fs::read_to_string(path).map_err(|e| NnError::io(path, e))?;
-    parse_post(&text).map_err(|m| NnError::Config(format!("{}: {m}", path.display())))
+    parse_post(&text).map_err(|message| NnError::ConfigFile { path: path.to_path_buf(), message })
 }
 
 fn parse_post(text: &str) -> std::result::Result<pi3det_nn::config::PostConfig, String> {

@@ -77,7 +77,7 @@ pub struct JsonlFrame {
     pub timestamp_s: Option<f64>,
     /// Where the frame's time went, by stage (`pi3det run`); the evaluator ignores it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub latency_ms: Option<std::collections::BTreeMap<String, f64>>,
+    pub latency_ms: Option<BTreeMap<String, f64>>,
 }
 
 impl JsonlFrame {

@@ -16,7 +16,7 @@ fn result_pkl() -> Vec<u8> {
     // A result.pkl as OpenPCDet writes it, through our writer.
     let dets = Detections::parse_jsonl(JSONL, Path::new("seed.jsonl")).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let frames: Vec<pi3det_data::pickle::Value> = dets
+    let frames: Vec<pickle::Value> = dets
         .frames
         .iter()
         .map(|(id, d)| {

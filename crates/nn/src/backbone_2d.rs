@@ -43,12 +43,10 @@ impl Backbone2dConfig {
             || self.upsample_strides.len() != n
             || self.num_upsample_filters.len() != n
         {
-            return Err(NnError::Config(
-                "backbone: layer_nums, layer_strides, num_filters, upsample_strides and num_upsample_filters must have the same non-zero length".into(),
-            ));
+            return Err(NnError::config("backbone_2d", "backbone: layer_nums, layer_strides, num_filters, upsample_strides and num_upsample_filters must have the same non-zero length"));
         }
         if self.layer_strides.iter().chain(&self.upsample_strides).chain(&self.num_filters).any(|&v| v < 1) {
-            return Err(NnError::Config("backbone: strides and filters must be positive".into()));
+            return Err(NnError::config("backbone_2d", "backbone: strides and filters must be positive"));
         }
         // All upsampled maps must share one resolution.
         let mut stride = 1;
@@ -56,13 +54,14 @@ impl Backbone2dConfig {
         for (s, u) in self.layer_strides.iter().zip(&self.upsample_strides) {
             stride *= s;
             if stride % u != 0 {
-                return Err(NnError::Config(format!(
-                    "backbone: block stride {stride} is not divisible by upsample {u}"
-                )));
+                return Err(NnError::config(
+                    "backbone_2d",
+                    format!("backbone: block stride {stride} is not divisible by upsample {u}"),
+                ));
             }
             let o = stride / u;
             if *out.get_or_insert(o) != o {
-                return Err(NnError::Config("backbone: upsampled maps have different strides".into()));
+                return Err(NnError::config("backbone_2d", "backbone: upsampled maps have different strides"));
             }
         }
         Ok(())

@@ -264,7 +264,7 @@ impl Default for DetectorConfig {
 
 impl DetectorConfig {
     pub fn from_toml_str(s: &str) -> Result<Self> {
-        let cfg: Self = toml::from_str(s).map_err(|e| NnError::Config(e.to_string()))?;
+        let cfg: Self = toml::from_str(s)?;
         cfg.validate()?;
         Ok(cfg)
     }
@@ -276,7 +276,7 @@ impl DetectorConfig {
     /// The file with `--set` overrides applied before it is read.
     pub fn from_file_with(path: &Path, overrides: &[ConfigOverride]) -> Result<Self> {
         let cfg: Self = read_config(path, overrides)?;
-        cfg.validate().map_err(|e| NnError::ConfigFile { path: path.to_path_buf(), message: e.to_string() })?;
+        cfg.validate().map_err(|e| NnError::InvalidConfigFile { path: path.to_path_buf(), source: Box::new(e) })?;
         Ok(cfg)
     }
 
@@ -318,28 +318,34 @@ impl DetectorConfig {
     /// Checks everything that would otherwise fail deep inside training.
     pub fn validate(&self) -> Result<()> {
         if self.classes.is_empty() {
-            return Err(NnError::Config("classes is empty".into()));
+            return Err(NnError::config("classes", "classes is empty"));
         }
         if !self.shift_z.is_finite() {
-            return Err(NnError::Config("shift_z must be finite".into()));
+            return Err(NnError::config("shift_z", "shift_z must be finite"));
         }
         if let Some(t) = &self.trained_on {
             if t.sensor_height_m.is_some_and(|h| !(h.is_finite() && h > 0.0)) {
-                return Err(NnError::Config("trained_on.sensor_height_m must be a positive number of metres".into()));
+                return Err(NnError::config(
+                    "trained_on.sensor_height_m",
+                    "trained_on.sensor_height_m must be a positive number of metres",
+                ));
             }
             if t.intensity_mean.is_some_and(|i| !(0.0..=1.0).contains(&i)) {
-                return Err(NnError::Config("trained_on.intensity_mean must be within [0, 1]".into()));
+                return Err(NnError::config(
+                    "trained_on.intensity_mean",
+                    "trained_on.intensity_mean must be within [0, 1]",
+                ));
             }
         }
         let grid = Grid::new(&self.pillars)?;
         self.backbone.validate()?;
         if self.vfe.num_filters.is_empty() || self.vfe.num_filters.iter().any(|&c| c < 2) {
-            return Err(NnError::Config("vfe.num_filters must be non-empty, each ≥ 2".into()));
+            return Err(NnError::config("vfe.num_filters", "vfe.num_filters must be non-empty, each ≥ 2"));
         }
         // A stacked layer outputs half its width and concatenates the pillar maximum back.
         let n_vfe = self.vfe.num_filters.len();
         if let Some(c) = self.vfe.num_filters[..n_vfe - 1].iter().find(|&&c| c % 2 == 1) {
-            return Err(NnError::Config(format!(
+            return Err(NnError::config("vfe.num_filters", format!(
                 "vfe.num_filters {:?}: every layer but the last must be even (got {c}): it outputs half and concatenates the pillar maximum",
                 self.vfe.num_filters
             )));
@@ -347,13 +353,14 @@ impl DetectorConfig {
         match (&self.backbone_3d, grid.is_voxel()) {
             (Some(b), true) => b.validate(self.sparse_shape())?,
             (Some(_), false) => {
-                return Err(NnError::Config(
-                    "backbone_3d convolves voxels: set [pillars] voxel_height (the voxels' height in metres)".into(),
+                return Err(NnError::config(
+                    "backbone_3d",
+                    "backbone_3d convolves voxels: set [pillars] voxel_height (the voxels' height in metres)",
                 ))
             }
-            (None, true) => return Err(NnError::Config(
-                "[pillars] voxel_height makes voxels, which need a [backbone_3d] (e.g. type = \"voxel_backbone_8x\")"
-                    .into(),
+            (None, true) => return Err(NnError::config(
+                "pillars.voxel_height",
+                "[pillars] voxel_height makes voxels, which need a [backbone_3d] (e.g. type = \"voxel_backbone_8x\")",
             )),
             (None, false) => {}
         }
@@ -364,7 +371,7 @@ impl DetectorConfig {
             * 4.0
             * self.train.batch_size as f64;
         if bev_bytes > MAX_BEV_BYTES {
-            return Err(NnError::Config(format!(
+            return Err(NnError::config("pillars", format!(
                 "pillar grid {}×{} with {} channels at batch {} needs a {:.1} GiB BEV map (limit {:.0} GiB): use larger pillars or a smaller range",
                 grid.nx,
                 grid.ny,
@@ -376,13 +383,16 @@ impl DetectorConfig {
         }
         let p = &self.post;
         if !(0.0..1.0).contains(&p.score_threshold) || !(0.0..=1.0).contains(&p.nms_iou) {
-            return Err(NnError::Config(format!(
-                "post: score_threshold must be in [0, 1) and nms_iou in [0, 1] (got {} and {})",
-                p.score_threshold, p.nms_iou
-            )));
+            return Err(NnError::config(
+                "post",
+                format!(
+                    "post: score_threshold must be in [0, 1) and nms_iou in [0, 1] (got {} and {})",
+                    p.score_threshold, p.nms_iou
+                ),
+            ));
         }
         if p.nms_pre_max == 0 || p.nms_post_max == 0 {
-            return Err(NnError::Config("post: nms_pre_max and nms_post_max must be positive".into()));
+            return Err(NnError::config("post", "post: nms_pre_max and nms_post_max must be positive"));
         }
         if let Some(g) = &p.ground_fit {
             g.validate()?;
@@ -399,17 +409,20 @@ impl DetectorConfig {
         let total_stride: i64 = self.backbone.layer_strides.iter().product::<i64>()
             * self.backbone_3d.as_ref().map_or(1, |b| b.xy_stride());
         if grid.nx as i64 % total_stride != 0 || grid.ny as i64 % total_stride != 0 {
-            return Err(NnError::Config(format!(
-                "pillar grid {}×{} is not divisible by the backbone's total stride {total_stride}",
-                grid.nx, grid.ny
-            )));
+            return Err(NnError::config(
+                "pillars",
+                format!(
+                    "pillar grid {}×{} is not divisible by the backbone's total stride {total_stride}",
+                    grid.nx, grid.ny
+                ),
+            ));
         }
         match &self.head {
             HeadConfig::Anchor(a) => {
                 let names: Vec<&str> = a.anchors.iter().map(|a| a.class.as_str()).collect();
                 let classes: Vec<&str> = self.classes.iter().map(String::as_str).collect();
                 if names != classes {
-                    return Err(NnError::Config(format!(
+                    return Err(NnError::config("head.anchors", format!(
                         "head.anchors must list one entry per class, in the order of classes {classes:?} (found {names:?})"
                     )));
                 }
@@ -419,9 +432,9 @@ impl DetectorConfig {
             }
             HeadConfig::Center(c) => {
                 if c.shared_channels < 1 || c.num_head_convs == 0 || c.max_objects_per_frame < 1 {
-                    return Err(NnError::Config(
-                        "center head: shared_channels, num_head_convs and max_objects_per_frame must be positive"
-                            .into(),
+                    return Err(NnError::config(
+                        "head",
+                        "center head: shared_channels, num_head_convs and max_objects_per_frame must be positive",
                     ));
                 }
             }
@@ -429,13 +442,15 @@ impl DetectorConfig {
         if let Some(r) = &self.roi_head {
             r.validate()?;
             if r.voxel_pool.is_some() && self.backbone_3d.is_none() {
-                return Err(NnError::Config(
-                    "roi_head.voxel_pool pools voxels: it needs a [backbone_3d] (a voxel detector)".into(),
+                return Err(NnError::config(
+                    "roi_head.voxel_pool",
+                    "roi_head.voxel_pool pools voxels: it needs a [backbone_3d] (a voxel detector)",
                 ));
             }
             if r.point_pool.is_some() && self.pillars.voxel_height.is_some() {
-                return Err(NnError::Config(
-                    "roi_head.point_pool reads pillars: it does not work on a voxel grid (voxel_height)".into(),
+                return Err(NnError::config(
+                    "roi_head.point_pool",
+                    "roi_head.point_pool reads pillars: it does not work on a voxel grid (voxel_height)",
                 ));
             }
         }
@@ -445,21 +460,21 @@ impl DetectorConfig {
         if let Some(p) = &self.pfa {
             p.validate()?;
             if self.roi_head.is_none() {
-                return Err(NnError::Config("pfa aligns RoI features: it needs a [roi_head]".into()));
+                return Err(NnError::config("pfa", "pfa aligns RoI features: it needs a [roi_head]"));
             }
         }
         if let Some((k, w)) = self.loss_weights.iter().find(|(_, w)| !(w.is_finite() && **w >= 0.0)) {
-            return Err(NnError::Config(format!("loss_weights.{k} = {w}: must be finite and ≥ 0")));
+            return Err(NnError::config("loss_weights", format!("loss_weights.{k} = {w}: must be finite and ≥ 0")));
         }
         let t = &self.train;
         if t.batch_size == 0 || t.epochs == 0 {
-            return Err(NnError::Config("train.batch_size and train.epochs must be positive".into()));
+            return Err(NnError::config("train.batch_size", "train.batch_size and train.epochs must be positive"));
         }
         if !(t.lr > 0.0 && t.lr.is_finite()) || t.div_factor <= 0.0 || t.final_div_factor <= 0.0 {
-            return Err(NnError::Config("train.lr, div_factor and final_div_factor must be positive".into()));
+            return Err(NnError::config("train", "train.lr, div_factor and final_div_factor must be positive"));
         }
         if !(0.0..=1.0).contains(&t.pct_start) {
-            return Err(NnError::Config("train.pct_start must be in [0, 1]".into()));
+            return Err(NnError::config("train.pct_start", "train.pct_start must be in [0, 1]"));
         }
         for a in &t.augment {
             a.validate()?;
@@ -468,16 +483,19 @@ impl DetectorConfig {
                 let unknown: Vec<&String> =
                     g.sample.iter().map(|s| &s.class).chain(g.min_points.keys()).filter(|c| !known(c)).collect();
                 if !unknown.is_empty() {
-                    return Err(NnError::Config(format!(
-                        "gt_sampling names classes {unknown:?} that are not among the detector's classes {:?}",
-                        self.classes
-                    )));
+                    return Err(NnError::config(
+                        "train.augment.gt_sampling",
+                        format!(
+                            "gt_sampling names classes {unknown:?} that are not among the detector's classes {:?}",
+                            self.classes
+                        ),
+                    ));
                 }
             }
             if let AugmentConfig::StatisticalNormalization(sn) = a {
                 let unknown: Vec<&String> = sn.size_delta_m.keys().filter(|c| !self.classes.contains(c)).collect();
                 if !unknown.is_empty() {
-                    return Err(NnError::Config(format!(
+                    return Err(NnError::config("train.augment.statistical_normalization", format!(
                         "statistical_normalization names classes {unknown:?} that are not among the detector's classes {:?}",
                         self.classes
                     )));

@@ -132,7 +132,7 @@ impl Detector {
         let stage_geometry = cfg.backbone_3d.as_ref().map(|b| StageGeometry::of(b, &prep.grid)).unwrap_or_default();
         let pfa = match (&cfg.pfa, &roi_head) {
             (Some(p), Some(r)) => Some(p.init(&root / "pfa", r.feature_channels())),
-            (Some(_), None) => return Err(NnError::Config("pfa needs a second stage (roi_head)".into())),
+            (Some(_), None) => return Err(NnError::config("pfa", "pfa needs a second stage (roi_head)")),
             (None, _) => None,
         };
         Ok(Self { vs, prep, vfe, backbone_3d, stage_geometry, backbone_2d, neck, dense_head, roi_head, pfa })
@@ -428,7 +428,7 @@ impl Detector {
         roi: &mut dyn FnMut(&Tensor, &Tensor) -> Result<Vec<Tensor>>,
     ) -> Result<Forward> {
         if dense.is_empty() {
-            return Err(NnError::Config("an exported model returned no tensors".into()));
+            return Err(NnError::Model("an exported model returned no tensors".into()));
         }
         let bev = dense.remove(0);
         let dense = self.dense_head.output_from_tensors(dense)?;
@@ -440,7 +440,7 @@ impl Detector {
                 let t = roi(&bev, &batch.rois)?;
                 let k = t.len();
                 let out = RoiOutput::from_tensors(t).ok_or_else(|| {
-                    NnError::Config(format!("the exported second stage returned {k} tensors, expected 4"))
+                    NnError::Model(format!("the exported second stage returned {k} tensors, expected 4"))
                 })?;
                 Some(RoiStage { out, targets: None, proposals: Some(batch) })
             }

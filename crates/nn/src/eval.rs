@@ -110,9 +110,9 @@ pub fn keep_camera_view(frames: &mut [FrameDetections]) -> usize {
 /// Evaluates detections against their frames' ground truth.
 pub fn evaluate(frames: &[FrameDetections], opts: &EvalOptions) -> Result<(EvalReport, ApSummary)> {
     let dets = Detections::from_objects(frames.iter().map(|f| (f.info.id.clone(), f.objects.clone())))
-        .map_err(|e| NnError::Eval(e.to_string()))?;
+        .map_err(NnError::from)?;
     let gt: Vec<pi3det_data::FrameInfo> = frames.iter().map(|f| f.info.clone()).collect();
-    let report = pi3det_eval::evaluate(&gt, &dets, opts).map_err(|e| NnError::Eval(e.to_string()))?;
+    let report = pi3det_eval::evaluate(&gt, &dets, opts).map_err(NnError::from)?;
     let summary = summarize(&report);
     Ok((report, summary))
 }
@@ -121,9 +121,9 @@ pub fn evaluate(frames: &[FrameDetections], opts: &EvalOptions) -> Result<(EvalR
 /// localisation errors) of detections against their frames' ground truth.
 pub fn breakdown(frames: &[FrameDetections], opts: &EvalOptions) -> Result<Breakdown> {
     let dets = Detections::from_objects(frames.iter().map(|f| (f.info.id.clone(), f.objects.clone())))
-        .map_err(|e| NnError::Eval(e.to_string()))?;
+        .map_err(NnError::from)?;
     let gt: Vec<pi3det_data::FrameInfo> = frames.iter().map(|f| f.info.clone()).collect();
-    pi3det_eval::breakdown(&gt, &dets, opts).map_err(|e| NnError::Eval(e.to_string()))
+    pi3det_eval::breakdown(&gt, &dets, opts).map_err(NnError::from)
 }
 
 pub fn summarize(report: &EvalReport) -> ApSummary {

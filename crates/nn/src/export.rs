@@ -104,7 +104,7 @@ pub fn export(det: &mut Detector, example: &Inputs, out: &Path) -> Result<Export
     }
     if det.has_backbone_3d() {
         // A trace records tensor operations only; the rulebooks are built in Rust per frame.
-        return Err(NnError::Config(
+        return Err(NnError::Model(
             "TorchScript export covers pillar detectors: a sparse 3-D backbone builds its rulebooks in Rust on every frame, which a trace cannot record".into(),
         ));
     }
@@ -139,11 +139,11 @@ pub fn export(det: &mut Detector, example: &Inputs, out: &Path) -> Result<Export
         // Trace the second stage on the example's own proposals, padded to the fixed count.
         let mut seen = None;
         det.forward_from_tensors(det.dense_tensors(&x)?, &mut |bev, rois| {
-            let t = det.roi_tensors(bev, rois)?.ok_or_else(|| NnError::Config("no second stage".into()))?;
+            let t = det.roi_tensors(bev, rois)?.ok_or_else(|| NnError::Model("no second stage".into()))?;
             seen = Some((bev.shallow_clone(), rois.shallow_clone(), t.iter().map(Tensor::size).collect::<Vec<_>>()));
             Ok(t)
         })?;
-        let (bev, rois, shapes) = seen.ok_or_else(|| NnError::Config("the second stage was not run".into()))?;
+        let (bev, rois, shapes) = seen.ok_or_else(|| NnError::Model("the second stage was not run".into()))?;
         let roi = CModule::create_by_tracing("Pi3detRoi", "forward", &[bev, rois], &mut |inp| {
             vec![flatten(&det.roi_tensors(&inp[0], &inp[1]).ok().flatten().unwrap_or_default())]
         })?;
@@ -225,7 +225,7 @@ impl TorchScriptModel {
         }
         let roi_path = roi_path(&self.path);
         self.det.forward_from_tensors(dense, &mut |bev, rois| {
-            let m = self.roi.as_ref().ok_or_else(|| NnError::Config("no second-stage module loaded".into()))?;
+            let m = self.roi.as_ref().ok_or_else(|| NnError::Model("no second-stage module loaded".into()))?;
             let shapes = self.meta.roi_shapes.as_deref().unwrap_or_default();
             let out = m.forward_is(&[IValue::Tensor(bev.shallow_clone()), IValue::Tensor(rois.shallow_clone())])?;
             unflatten(&tensor(out, &roi_path)?, shapes, &roi_path)

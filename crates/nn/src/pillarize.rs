@@ -78,29 +78,40 @@ impl Grid {
         let r = cfg.point_cloud_range;
         let [vx, vy] = cfg.pillar_size;
         if r.iter().chain(&cfg.pillar_size).any(|v| !v.is_finite()) || vx <= 0.0 || vy <= 0.0 {
-            return Err(NnError::Config(format!("pillar grid: bad range {r:?} or pillar size {:?}", cfg.pillar_size)));
+            return Err(NnError::config(
+                "pillars",
+                format!("pillar grid: bad range {r:?} or pillar size {:?}", cfg.pillar_size),
+            ));
         }
         if r[3] <= r[0] || r[4] <= r[1] || r[5] <= r[2] {
-            return Err(NnError::Config(format!("point_cloud_range {r:?}: each max must exceed its min")));
+            return Err(NnError::config(
+                "pillars.point_cloud_range",
+                format!("point_cloud_range {r:?}: each max must exceed its min"),
+            ));
         }
         let nx = ((r[3] - r[0]) / vx).round() as usize;
         let ny = ((r[4] - r[1]) / vy).round() as usize;
         if nx == 0 || ny == 0 || nx * ny > 64 << 20 {
-            return Err(NnError::Config(format!("pillar grid {nx}×{ny} is empty or too large")));
+            return Err(NnError::config("pillars", format!("pillar grid {nx}×{ny} is empty or too large")));
         }
         let (vz, nz) = match cfg.voxel_height {
             None => (r[5] - r[2], 1),
             Some(h) if h.is_finite() && h > 0.0 => {
                 let nz = ((r[5] - r[2]) / h).round() as usize;
                 if nz == 0 || nz > 4096 {
-                    return Err(NnError::Config(format!("voxel_height {h}: {nz} voxels along z (want 1..=4096)")));
+                    return Err(NnError::config(
+                        "pillars.voxel_height",
+                        format!("voxel_height {h}: {nz} voxels along z (want 1..=4096)"),
+                    ));
                 }
                 (h, nz)
             }
-            Some(h) => return Err(NnError::Config(format!("voxel_height {h} must be positive"))),
+            Some(h) => {
+                return Err(NnError::config("pillars.voxel_height", format!("voxel_height {h} must be positive")))
+            }
         };
         if cfg.max_points_per_pillar == 0 || cfg.max_pillars_train == 0 || cfg.max_pillars_test == 0 {
-            return Err(NnError::Config("max_points_per_pillar and max_pillars_* must be positive".into()));
+            return Err(NnError::config("pillars", "max_points_per_pillar and max_pillars_* must be positive"));
         }
         Ok(Self {
             x_min: r[0],

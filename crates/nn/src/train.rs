@@ -269,9 +269,12 @@ pub fn train(mut opts: TrainOptions, on_event: &mut dyn FnMut(Event<'_>)) -> Res
                 let unused = losses.unused_scales();
                 if !unused.is_empty() {
                     let names: Vec<&str> = losses.terms().iter().map(|(n, _)| *n).collect();
-                    return Err(NnError::Config(format!(
+                    return Err(NnError::config(
+                        "loss_weights",
+                        format!(
                         "loss_weights names {unused:?}, which no stage of this detector computes (terms: {names:?})"
-                    )));
+                    ),
+                    ));
                 }
             }
             let total = losses.total();

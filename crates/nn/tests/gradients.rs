@@ -66,7 +66,7 @@ fn anchor_loss_gradients_follow_the_assignment() {
     let n = anchors.len() as i64;
     let cfg = AnchorHeadConfig::default();
     let vs = nn::VarStore::new(Device::Cpu);
-    let map = pi3det_nn::target_assigner::CenterMap { h: 16, w: 16, cell: [0.8, 0.8], origin: [-6.4, -6.4] };
+    let map = CenterMap { h: 16, w: 16, cell: [0.8, 0.8], origin: [-6.4, -6.4] };
     let head = cfg.init(vs.root(), 8, 2, &map);
     // Random outputs we differentiate with respect to.
     tch::manual_seed(3);

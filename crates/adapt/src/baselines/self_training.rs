@@ -66,16 +66,17 @@ impl SelfTrainingConfig {
         self.labels.validate()?;
         KaConfig { epochs: self.epochs, lr: self.lr }.validate()?;
         if self.ds_norm && !self.source_assisted {
-            return Err(NnError::Config(
-                "self_training: ds_norm needs source_assisted (a source batch to keep apart)".into(),
+            return Err(NnError::config(
+                "self_training",
+                "self_training: ds_norm needs source_assisted (a source batch to keep apart)",
             ));
         }
         if let Some(c) = &self.curriculum {
             if !(c.factor.is_finite() && c.factor > 0.0) {
-                return Err(NnError::Config(format!(
-                    "self_training.curriculum: factor must be positive (got {})",
-                    c.factor
-                )));
+                return Err(NnError::config(
+                    "self_training.curriculum",
+                    format!("self_training.curriculum: factor must be positive (got {})", c.factor),
+                ));
             }
         }
         Ok(())
@@ -158,9 +159,9 @@ impl SelfTraining<'_> {
             return Err(NnError::Input("source-assisted self-training needs source frames".into()));
         }
         if cfg.ds_norm && det.cfg().pfa.is_some() {
-            return Err(NnError::Config(
-                "self_training: ds_norm keeps each domain's pass apart, which PFA's source ↔ target KL term cannot"
-                    .into(),
+            return Err(NnError::config(
+                "self_training",
+                "self_training: ds_norm keeps each domain's pass apart, which PFA's source ↔ target KL term cannot",
             ));
         }
         std::fs::create_dir_all(out_dir).map_err(|e| NnError::io(out_dir, e))?;

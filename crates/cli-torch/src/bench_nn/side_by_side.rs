@@ -101,8 +101,9 @@ fn tensor_i64(t: &tch::Tensor) -> Result<Vec<i64>> {
 pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
     let cfg = &opts.config;
     let HeadConfig::Anchor(anchor_cfg) = &cfg.head else {
-        return Err(NnError::Config(
-            "bench nn compares the anchor-head PointPillars; use an anchor-head config".into(),
+        return Err(NnError::config(
+            "bench_nn",
+            "bench nn compares the anchor-head PointPillars; use an anchor-head config",
         ));
     };
     if opts.samples.is_empty() {
@@ -209,8 +210,9 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
     };
     let Some((python, script)) = &opts.python else { return Ok(report) };
     if cfg.backbone_3d.is_some() {
-        return Err(NnError::Config(
-            "the PyTorch side of bench nn is PointPillars; run voxel detectors with --no-torch".into(),
+        return Err(NnError::config(
+            "bench_nn",
+            "the PyTorch side of bench nn is PointPillars; run voxel detectors with --no-torch",
         ));
     }
     // Export the inputs for PyTorch.
@@ -222,7 +224,7 @@ pub fn run(opts: &BenchOptions) -> Result<BenchReport> {
     write_bin(dir, "train_cells", &tensor_i64(&x.cells)?, i64b)?;
     let at = t
         .downcast_ref::<AnchorBatchTargets>()
-        .ok_or_else(|| NnError::Config("bench nn needs an anchor-head config".into()))?;
+        .ok_or_else(|| NnError::config("bench_nn", "bench nn needs an anchor-head config"))?;
     write_bin(dir, "train_labels", &tensor_i64(&at.labels)?, i64b)?;
     write_bin(dir, "train_pos_index", &tensor_i64(&at.pos_index)?, i64b)?;
     write_bin(dir, "train_pos_codes", &tensor_f32(&at.pos_codes)?, f32b)?;

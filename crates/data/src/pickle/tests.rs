@@ -365,7 +365,7 @@ fn accessors() {
 #[test]
 fn a_list_inside_itself_is_read_and_freed() {
     // PROTO 4, EMPTY_LIST, MEMOIZE, BINGET 0, APPEND, STOP: `l = []; l.append(l)`.
-    let e = super::from_slice(&[0x80, 4, b']', 0x94, b'h', 0, b'a', b'.']).unwrap_err().to_string();
+    let e = from_slice(&[0x80, 4, b']', 0x94, b'h', 0, b'a', b'.']).unwrap_err().to_string();
     // A recursive value cannot become an owned tree; its containers are freed all the same (the
     // cargo-fuzz targets run under LeakSanitizer, which found the leak this guards against).
     assert!(e.contains("recursive") || e.contains("itself"), "{e}");

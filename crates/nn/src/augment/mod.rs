@@ -118,7 +118,7 @@ impl AugmentConfig {
         if ok {
             Ok(())
         } else {
-            Err(NnError::Config(format!("augmentation {}: invalid parameters {self:?}", self.name())))
+            Err(NnError::config("train.augment", format!("augmentation {}: invalid parameters {self:?}", self.name())))
         }
     }
 
@@ -127,7 +127,9 @@ impl AugmentConfig {
     pub fn build(&self, database: Option<&Arc<GtDatabase>>, class_names: &[String]) -> Result<Box<dyn Augment>> {
         Ok(match self {
             Self::GtSampling(c) => {
-                let db = database.ok_or_else(|| NnError::Config("gt_sampling needs a ground-truth database".into()))?;
+                let db = database.ok_or_else(|| {
+                    NnError::config("train.augment.gt_sampling", "gt_sampling needs a ground-truth database")
+                })?;
                 Box::new(GtSampling::new(c.clone(), db.clone()).with_classes(class_names))
             }
             Self::RandomObjectRotation(c) => Box::new(RandomObjectRotation(c.clone())),

@@ -71,22 +71,22 @@ impl VoxelBackbone8xConfig {
 
     pub fn validate(&self, shape: [i64; 3]) -> Result<()> {
         if self.channels.iter().any(|&c| c < 1) || self.out_channels < 1 {
-            return Err(NnError::Config("backbone_3d: channels and out_channels must be positive".into()));
+            return Err(NnError::config("backbone_3d", "backbone_3d: channels and out_channels must be positive"));
         }
         let mut s = shape;
         for (c, _) in &layers(self).0 {
             s = c.output_shape(s);
             if s.iter().any(|&d| d < 1) {
-                return Err(NnError::Config(format!(
+                return Err(NnError::config("backbone_3d", format!(
                     "backbone_3d: a sparse grid of {shape:?} (z × y × x, z padded by one) vanishes inside VoxelBackBone8x: it needs at least 25 voxels along z (set [pillars] voxel_height smaller)"
                 )));
             }
         }
         if shape[1] % 8 != 0 || shape[2] % 8 != 0 {
-            return Err(NnError::Config(format!(
-                "backbone_3d: the voxel grid's y × x ({} × {}) must be divisible by 8",
-                shape[1], shape[2]
-            )));
+            return Err(NnError::config(
+                "backbone_3d",
+                format!("backbone_3d: the voxel grid's y × x ({} × {}) must be divisible by 8", shape[1], shape[2]),
+            ));
         }
         Ok(())
     }

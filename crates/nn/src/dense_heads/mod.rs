@@ -109,7 +109,7 @@ impl DenseOutput {
 }
 
 fn mismatch(what: &str) -> NnError {
-    NnError::Config(format!("{what} do not belong to this detector's dense head (head/target mismatch)"))
+    NnError::Model(format!("{what} do not belong to this detector's dense head (head/target mismatch)"))
 }
 
 /// Object-safe form of [`DenseHead`], implemented for every head.
@@ -161,7 +161,7 @@ impl<H: DenseHead> AnyDenseHead for H {
         let n = t.len();
         H::output_from_tensors(t)
             .map(|o| DenseOutput(Box::new(o)))
-            .ok_or_else(|| NnError::Config(format!("{n} output tensors do not fit this detector's dense head")))
+            .ok_or_else(|| NnError::Model(format!("{n} output tensors do not fit this detector's dense head")))
     }
 }
 

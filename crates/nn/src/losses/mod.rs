@@ -44,7 +44,7 @@ impl LossTerms {
         let mut it = self.terms.iter().map(|(_, t)| t);
         match it.next() {
             Some(first) => it.fold(first.shallow_clone(), |acc, t| acc + t),
-            None => Tensor::zeros([], (tch::Kind::Float, tch::Device::Cpu)),
+            None => Tensor::zeros([], (Kind::Float, tch::Device::Cpu)),
         }
     }
 

@@ -55,9 +55,10 @@ impl TargetNegativesConfig {
         if unsure_ok && self.full_coverage.is_finite() && self.full_coverage > 0.0 && self.full_coverage <= 1.0 {
             Ok(())
         } else {
-            Err(NnError::Config(format!(
-                "target_negatives: need 0 ≤ unsure_score < 1 and 0 < full_coverage ≤ 1 (got {self:?})"
-            )))
+            Err(NnError::config(
+                "target_negatives",
+                format!("target_negatives: need 0 ≤ unsure_score < 1 and 0 < full_coverage ≤ 1 (got {self:?})"),
+            ))
         }
     }
 

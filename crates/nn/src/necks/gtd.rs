@@ -72,7 +72,7 @@ impl GtdConfig {
             || self.rotation_hidden < 1
             || !(self.rotation_weight.is_finite() && self.rotation_weight >= 0.0)
         {
-            return Err(crate::NnError::Config(format!("neck gtd: invalid settings {self:?}")));
+            return Err(crate::NnError::config("neck", format!("neck gtd: invalid settings {self:?}")));
         }
         Ok(())
     }

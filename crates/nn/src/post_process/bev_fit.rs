@@ -92,14 +92,17 @@ impl BevFitConfig {
             || !(self.heading_step_rad.is_finite() && self.heading_step_rad > 0.0)
             || !(self.closeness_floor_m.is_finite() && self.closeness_floor_m > 0.0)
         {
-            return Err(NnError::Config(
+            return Err(NnError::config(
+                "post.bev_fit",
                 "post.bev_fit: heading_step_rad and closeness_floor_m must be positive; min_length_m, margin_m, \
-                 clearance_m, max_turn_rad, max_shift_m, max_grow_m and max_grow_width_m finite and ≥ 0"
-                    .into(),
+                 clearance_m, max_turn_rad, max_shift_m, max_grow_m and max_grow_width_m finite and ≥ 0",
             ));
         }
         if self.min_points < 3 || self.passes == 0 {
-            return Err(NnError::Config("post.bev_fit: min_points must be at least 3 and passes at least 1".into()));
+            return Err(NnError::config(
+                "post.bev_fit",
+                "post.bev_fit: min_points must be at least 3 and passes at least 1",
+            ));
         }
         Ok(())
     }

@@ -70,18 +70,16 @@ impl GroundFitConfig {
         let lengths = [self.margin_m, self.max_shift_m, self.top_inset_m, self.top_reach_m, self.top_max_lower_m];
         let fracs = [self.ground_quantile, self.top_min_frac, self.min_height_frac];
         if lengths.iter().any(|v| !(v.is_finite() && *v >= 0.0)) || self.margin_m <= 0.0 {
-            return Err(NnError::Config(
-                "post.ground_fit: margin_m must be positive; max_shift_m, top_inset_m, top_reach_m and top_max_lower_m finite and ≥ 0"
-                    .into(),
-            ));
+            return Err(NnError::config("post.ground_fit", "post.ground_fit: margin_m must be positive; max_shift_m, top_inset_m, top_reach_m and top_max_lower_m finite and ≥ 0"));
         }
         if fracs.iter().any(|v| !(0.0..=1.0).contains(v)) {
-            return Err(NnError::Config(
-                "post.ground_fit: ground_quantile, top_min_frac and min_height_frac must be in [0, 1]".into(),
+            return Err(NnError::config(
+                "post.ground_fit",
+                "post.ground_fit: ground_quantile, top_min_frac and min_height_frac must be in [0, 1]",
             ));
         }
         if self.min_ground_points == 0 {
-            return Err(NnError::Config("post.ground_fit: min_ground_points must be at least 1".into()));
+            return Err(NnError::config("post.ground_fit", "post.ground_fit: min_ground_points must be at least 1"));
         }
         Ok(())
     }

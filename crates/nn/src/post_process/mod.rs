@@ -84,7 +84,7 @@ pub fn fit_to_points(
     post: &PostConfig,
     classes: &[String],
     frames: &mut [Vec<Detection>],
-    index: &[Option<crate::post_process::ground_fit::PointIndex>],
+    index: &[Option<ground_fit::PointIndex>],
     detector_from_lidar: &[pi3det_geometry::Pose],
 ) {
     // Per class index: the upright check's settings when it checks that class.
@@ -95,13 +95,13 @@ pub fn fit_to_points(
         let sensor_xy = [pose.translation.x, pose.translation.y];
         for d in dets.iter_mut() {
             if let Some(g) = &post.ground_fit {
-                d.box3d = crate::post_process::ground_fit::fit_box(&d.box3d, idx, g).0;
+                d.box3d = ground_fit::fit_box(&d.box3d, idx, g).0;
             }
             if let Some(b) = &post.bev_fit {
-                d.box3d = crate::post_process::bev_fit::fit_box(&d.box3d, idx, sensor_xy, b).0;
+                d.box3d = bev_fit::fit_box(&d.box3d, idx, sensor_xy, b).0;
             }
             if let Some(u) = upright.get(d.class).copied().flatten() {
-                if crate::post_process::upright_check::check_box(&d.box3d, idx, u).is_some() {
+                if upright_check::check_box(&d.box3d, idx, u).is_some() {
                     d.score *= u.score_factor;
                 }
             }

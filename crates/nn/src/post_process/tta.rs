@@ -55,7 +55,7 @@ impl TtaConfig {
 
     /// Finite angles, IoUs in (0, 1], class names the detector has.
     pub fn validate(&self, classes: &[String]) -> Result<()> {
-        let bad = |m: String| Err(NnError::Config(format!("post.tta: {m}")));
+        let bad = |m: String| Err(NnError::config("post.tta", format!("post.tta: {m}")));
         if let Some(d) = self.yaw_deg.iter().find(|d| !d.is_finite() || d.abs() >= 180.0) {
             return bad(format!("yaw_deg {d} is not an angle in (−180, 180)"));
         }

@@ -66,17 +66,15 @@ impl UprightCheckConfig {
             || self.radius_m <= 0.0
             || !(0.0..=1.0).contains(&self.score_factor)
         {
-            return Err(NnError::Config(
-                "post.upright_check: radius_m must be positive, min_height_m, clearance_m, clear_above_m and gap_m finite and ≥ 0, \
-                 score_factor in [0, 1]"
-                    .into(),
-            ));
+            return Err(NnError::config("post.upright_check", "post.upright_check: radius_m must be positive, min_height_m, clearance_m, clear_above_m and gap_m finite and ≥ 0, \
+                 score_factor in [0, 1]"));
         }
         let unknown: Vec<&String> = self.classes.iter().filter(|c| !classes.contains(c)).collect();
         if !unknown.is_empty() {
-            return Err(NnError::Config(format!(
-                "post.upright_check: classes {unknown:?} are not among the detector's classes {classes:?}"
-            )));
+            return Err(NnError::config(
+                "post.upright_check",
+                format!("post.upright_check: classes {unknown:?} are not among the detector's classes {classes:?}"),
+            ));
         }
         Ok(())
     }

@@ -58,11 +58,11 @@ impl Level {
 
     /// The Virtual Platform Pose levelling frames to [`Level::height_m`] (none when this does not
     /// level); its counts say how many frames had no ground.
-    pub fn transform(self, cfg: &DetectorConfig) -> Result<Option<Arc<crate::preprocess::vpp::VirtualPlatformPose>>> {
+    pub fn transform(self, cfg: &DetectorConfig) -> Result<Option<Arc<vpp::VirtualPlatformPose>>> {
         let Some(h) = self.height_m(cfg) else { return Ok(None) };
-        let v = crate::preprocess::vpp::VppConfig { source_height_m: Some(h), ..Default::default() };
+        let v = vpp::VppConfig { source_height_m: Some(h), ..Default::default() };
         v.validate()?;
-        Ok(Some(Arc::new(crate::preprocess::vpp::VirtualPlatformPose::new(&v, cfg.shift_z, h))))
+        Ok(Some(Arc::new(vpp::VirtualPlatformPose::new(&v, cfg.shift_z, h))))
     }
 
     /// One line saying what this does under `cfg`, for the log.
@@ -318,10 +318,10 @@ mod tests {
     #[test]
     fn only_a_constant_intensity_is_replaced() {
         let mut lost = vec![[0.0, 0.0, 0.0, 1.0], [1.0, 0.0, 0.0, 1.0]];
-        assert!(super::impute_lost_intensity(&mut lost, 0.3));
+        assert!(impute_lost_intensity(&mut lost, 0.3));
         assert!(lost.iter().all(|p| p[3] == 0.3));
         let mut real = vec![[0.0, 0.0, 0.0, 1.0], [1.0, 0.0, 0.0, 0.5]];
-        assert!(!super::impute_lost_intensity(&mut real, 0.3));
+        assert!(!impute_lost_intensity(&mut real, 0.3));
         assert_eq!(real[1][3], 0.5);
     }
 

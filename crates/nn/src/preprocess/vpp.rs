@@ -69,7 +69,7 @@ impl VppConfig {
         if h_ok && t_ok && self.source_frames > 0 {
             Ok(())
         } else {
-            Err(NnError::Config(format!("vpp: invalid settings {self:?}")))
+            Err(NnError::config("vpp", format!("vpp: invalid settings {self:?}")))
         }
     }
 }

@@ -49,10 +49,16 @@ impl Default for BevRoiPoolConfig {
 impl BevRoiPoolConfig {
     pub fn validate(&self) -> Result<()> {
         if self.layout == PoolLayout::Grid && !(1..=32).contains(&self.grid_size) {
-            return Err(NnError::Config(format!("roi pool: grid_size {} is not in 1..=32", self.grid_size)));
+            return Err(NnError::config(
+                "roi_head.bev_pool",
+                format!("roi pool: grid_size {} is not in 1..=32", self.grid_size),
+            ));
         }
         if !(self.margin.is_finite() && self.margin >= 0.0) {
-            return Err(NnError::Config(format!("roi pool: margin {} must be finite and ≥ 0", self.margin)));
+            return Err(NnError::config(
+                "roi_head.bev_pool",
+                format!("roi pool: margin {} must be finite and ≥ 0", self.margin),
+            ));
         }
         Ok(())
     }

@@ -82,7 +82,7 @@ impl PfaConfig {
     pub fn validate(&self) -> Result<()> {
         let w_ok = |w: f64| w.is_finite() && w >= 0.0;
         if self.latent_channels < 1 || self.hidden_channels < 1 || !w_ok(self.roi_weight) || !w_ok(self.kl_weight) {
-            return Err(NnError::Config(format!("pfa: invalid settings {self:?}")));
+            return Err(NnError::config("pfa", format!("pfa: invalid settings {self:?}")));
         }
         Ok(())
     }

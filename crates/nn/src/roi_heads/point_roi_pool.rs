@@ -45,13 +45,22 @@ const POINT_INPUTS: i64 = 7;
 impl PointRoiPoolConfig {
     pub fn validate(&self) -> Result<()> {
         if !(1..=32).contains(&self.lattice) {
-            return Err(NnError::Config(format!("roi point pool: lattice {} is not in 1..=32", self.lattice)));
+            return Err(NnError::config(
+                "roi_head.point_pool",
+                format!("roi point pool: lattice {} is not in 1..=32", self.lattice),
+            ));
         }
         if !(self.margin.is_finite() && self.margin >= 0.0) {
-            return Err(NnError::Config(format!("roi point pool: margin {} must be finite and ≥ 0", self.margin)));
+            return Err(NnError::config(
+                "roi_head.point_pool",
+                format!("roi point pool: margin {} must be finite and ≥ 0", self.margin),
+            ));
         }
         if self.channels.is_empty() || self.channels.iter().any(|&c| c < 1) {
-            return Err(NnError::Config("roi point pool: channels must be a non-empty list of positive widths".into()));
+            return Err(NnError::config(
+                "roi_head.point_pool",
+                "roi point pool: channels must be a non-empty list of positive widths",
+            ));
         }
         Ok(())
     }
@@ -107,7 +116,7 @@ impl PointRoiPool {
     pub fn forward(&self, pts: &PillarPoints, rois: &Tensor) -> Result<Tensor> {
         let g = &pts.grid;
         if g.voxels {
-            return Err(NnError::Config("roi point pool: needs a pillar grid, not voxels".into()));
+            return Err(NnError::config("roi_head.point_pool", "roi point pool: needs a pillar grid, not voxels"));
         }
         let (b, n, seven) = rois
             .size3()

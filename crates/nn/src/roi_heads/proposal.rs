@@ -72,13 +72,19 @@ impl ProposalConfig {
             || self.nms_pre_max_test == 0
             || self.nms_post_max_test == 0
         {
-            return Err(NnError::Config("roi proposal: nms_pre_max_* and nms_post_max_* must be positive".into()));
+            return Err(NnError::config(
+                "roi_head.proposal",
+                "roi proposal: nms_pre_max_* and nms_post_max_* must be positive",
+            ));
         }
         if !(0.0..=1.0).contains(&self.nms_iou) {
-            return Err(NnError::Config(format!("roi proposal: nms_iou {} is not in [0, 1]", self.nms_iou)));
+            return Err(NnError::config(
+                "roi_head.proposal",
+                format!("roi proposal: nms_iou {} is not in [0, 1]", self.nms_iou),
+            ));
         }
         if !self.score_threshold.is_finite() {
-            return Err(NnError::Config("roi proposal: score_threshold must be finite".into()));
+            return Err(NnError::config("roi_head.proposal", "roi proposal: score_threshold must be finite"));
         }
         Ok(())
     }

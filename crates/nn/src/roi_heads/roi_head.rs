@@ -134,18 +134,22 @@ impl RoiHeadConfig {
         self.sampler.validate()?;
         self.proposal.validate()?;
         if self.point_channels < 0 {
-            return Err(NnError::Config("roi head: point_channels must be ≥ 0".into()));
+            return Err(NnError::config("roi_head", "roi head: point_channels must be ≥ 0"));
         }
         if self.shared_fc.iter().chain(&self.cls_fc).chain(&self.reg_fc).any(|&c| c < 1) {
-            return Err(NnError::Config("roi head: shared_fc, cls_fc and reg_fc channels must be positive".into()));
+            return Err(NnError::config(
+                "roi_head",
+                "roi head: shared_fc, cls_fc and reg_fc channels must be positive",
+            ));
         }
         if !(0.0..1.0).contains(&self.dropout) {
-            return Err(NnError::Config(format!("roi head: dropout {} is not in [0, 1)", self.dropout)));
+            return Err(NnError::config("roi_head", format!("roi head: dropout {} is not in [0, 1)", self.dropout)));
         }
         let weights = [self.rcnn_cls_weight, self.rcnn_reg_weight, self.rcnn_corner_weight, self.reg_beta];
         if weights.iter().chain(&self.code_weights).any(|w| !(w.is_finite() && *w >= 0.0)) {
-            return Err(NnError::Config(
-                "roi head: loss weights, reg_beta and code_weights must be finite and ≥ 0".into(),
+            return Err(NnError::config(
+                "roi_head",
+                "roi head: loss weights, reg_beta and code_weights must be finite and ≥ 0",
             ));
         }
         Ok(())
@@ -175,7 +179,7 @@ impl RoiHeadConfig {
             None => (bev_channels, pool.num_points()),
         };
         if in_channels < 1 {
-            return Err(NnError::Config("roi head: in_channels must be positive".into()));
+            return Err(NnError::config("roi_head", "roi head: in_channels must be positive"));
         }
         let point =
             (self.point_channels > 0).then(|| FcLayer::new(&vs / "point", in_channels, self.point_channels, bn));
@@ -482,7 +486,7 @@ impl RoiHead {
                 let w = &self.cfg.hybrid_iou_weights;
                 let table: Vec<f32> = w.iter().map(|&x| x as f32).chain(std::iter::once(0.5)).collect();
                 let table = Tensor::from_slice(&table).to_device(q.device()).to_kind(q.kind());
-                let idx = roi_labels.to_kind(tch::Kind::Int64).clamp(0, w.len() as i64);
+                let idx = roi_labels.to_kind(Kind::Int64).clamp(0, w.len() as i64);
                 let wq = table.index_select(0, &idx.reshape([-1])).view_as(&q);
                 &wq * &q + (1.0 - &wq) * s
             }

@@ -122,11 +122,11 @@ impl RoiSamplerConfig {
             if (0.0..=1.0).contains(&v) {
                 Ok(())
             } else {
-                Err(NnError::Config(format!("roi sampler: {name} {v} is not in [0, 1]")))
+                Err(NnError::config("roi_head.sampler", format!("roi sampler: {name} {v} is not in [0, 1]")))
             }
         };
         if self.roi_per_image == 0 {
-            return Err(NnError::Config("roi sampler: roi_per_image must be positive".into()));
+            return Err(NnError::config("roi_head.sampler", "roi sampler: roi_per_image must be positive"));
         }
         unit("fg_ratio", self.fg_ratio)?;
         unit("reg_fg_thresh", self.reg_fg_thresh)?;
@@ -135,10 +135,13 @@ impl RoiSamplerConfig {
         unit("cls_bg_thresh_lo", self.cls_bg_thresh_lo)?;
         unit("hard_bg_ratio", self.hard_bg_ratio)?;
         if self.cls_bg_thresh >= self.cls_fg_thresh {
-            return Err(NnError::Config("roi sampler: cls_bg_thresh must be below cls_fg_thresh".into()));
+            return Err(NnError::config("roi_head.sampler", "roi sampler: cls_bg_thresh must be below cls_fg_thresh"));
         }
         if self.cls_bg_thresh_lo > self.reg_fg_thresh {
-            return Err(NnError::Config("roi sampler: cls_bg_thresh_lo must not exceed reg_fg_thresh".into()));
+            return Err(NnError::config(
+                "roi_head.sampler",
+                "roi sampler: cls_bg_thresh_lo must not exceed reg_fg_thresh",
+            ));
         }
         Ok(())
     }

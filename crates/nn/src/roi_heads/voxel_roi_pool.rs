@@ -55,14 +55,20 @@ impl Default for VoxelRoiPoolConfig {
 impl VoxelRoiPoolConfig {
     pub fn validate(&self) -> Result<()> {
         if !(1..=12).contains(&self.grid_size) || self.stages.is_empty() {
-            return Err(NnError::Config("voxel roi pool: grid_size must be in 1..=12 and stages non-empty".into()));
+            return Err(NnError::config(
+                "roi_head.voxel_pool",
+                "voxel roi pool: grid_size must be in 1..=12 and stages non-empty",
+            ));
         }
         for s in &self.stages {
             if !(1..=4).contains(&s.stage) || !(0..=4).contains(&s.radius) || s.max_neighbours == 0 || s.channels < 1 {
-                return Err(NnError::Config(format!(
-                    "voxel roi pool: stage {} (1–4), radius {} (0–4), max_neighbours {} and channels {} (positive)",
-                    s.stage, s.radius, s.max_neighbours, s.channels
-                )));
+                return Err(NnError::config(
+                    "roi_head.voxel_pool",
+                    format!(
+                        "voxel roi pool: stage {} (1–4), radius {} (0–4), max_neighbours {} and channels {} (positive)",
+                        s.stage, s.radius, s.max_neighbours, s.channels
+                    ),
+                ));
             }
         }
         Ok(())
@@ -85,7 +91,10 @@ impl VoxelRoiPoolConfig {
             .enumerate()
             .map(|(k, s)| {
                 let c_in = stage_channels.get(s.stage - 1).copied().ok_or_else(|| {
-                    NnError::Config(format!("voxel roi pool: the 3-D backbone has no stage {}", s.stage))
+                    NnError::config(
+                        "roi_head.voxel_pool",
+                        format!("voxel roi pool: the 3-D backbone has no stage {}", s.stage),
+                    )
                 })?;
                 let p = &vs / format!("stage{k}");
                 let cfg = nn::LinearConfig { bias: false, ..Default::default() };

@@ -51,10 +51,13 @@ fn index_of(coords: &[Coord]) -> FxHashMap<u64, u32> {
 
 fn check_shape(shape: [i64; 3], kernel: [i64; 3]) -> Result<()> {
     if shape.iter().any(|&d| !(1..=u16::MAX as i64).contains(&d)) {
-        return Err(NnError::Config(format!("sparse tensor shape {shape:?}: each side must be in 1..=65535")));
+        return Err(NnError::config(
+            "backbone_3d",
+            format!("sparse tensor shape {shape:?}: each side must be in 1..=65535"),
+        ));
     }
     if kernel.iter().any(|&k| k < 1) {
-        return Err(NnError::Config(format!("sparse convolution kernel {kernel:?} must be positive")));
+        return Err(NnError::config("backbone_3d", format!("sparse convolution kernel {kernel:?} must be positive")));
     }
     Ok(())
 }
@@ -102,7 +105,10 @@ impl Rulebook {
     pub fn submanifold(coords: Arc<Vec<Coord>>, shape: [i64; 3], kernel: [i64; 3]) -> Result<Self> {
         check_shape(shape, kernel)?;
         if kernel.iter().any(|k| k % 2 == 0) {
-            return Err(NnError::Config(format!("submanifold convolution needs an odd kernel, got {kernel:?}")));
+            return Err(NnError::config(
+                "backbone_3d",
+                format!("submanifold convolution needs an odd kernel, got {kernel:?}"),
+            ));
         }
         let map = index_of(&coords);
         let per_k: Vec<Vec<(i64, i64)>> = kernel_offsets(kernel)
@@ -145,7 +151,10 @@ impl Rulebook {
     ) -> Result<Self> {
         check_shape(shape, kernel)?;
         if stride.iter().any(|&s| s < 1) || padding.iter().any(|&p| p < 0) {
-            return Err(NnError::Config(format!("sparse convolution stride {stride:?} / padding {padding:?}")));
+            return Err(NnError::config(
+                "backbone_3d",
+                format!("sparse convolution stride {stride:?} / padding {padding:?}"),
+            ));
         }
         let out_shape: [i64; 3] = std::array::from_fn(|a| {
             let span = shape[a] + 2 * padding[a] - kernel[a];
@@ -156,7 +165,7 @@ impl Rulebook {
             }
         });
         if out_shape.iter().any(|&d| d < 1) {
-            return Err(NnError::Config(format!(
+            return Err(NnError::config("backbone_3d", format!(
                 "sparse convolution of kernel {kernel:?}, stride {stride:?}, padding {padding:?} on shape {shape:?} has an empty output"
             )));
         }

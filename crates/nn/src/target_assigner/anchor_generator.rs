@@ -66,10 +66,13 @@ impl AnchorClassConfig {
             || !(0.0..=1.0).contains(&self.unmatched_threshold)
             || self.unmatched_threshold > self.matched_threshold;
         if bad {
-            return Err(NnError::Config(format!(
-                "anchors of {}: need positive sizes, finite bottom_z and rotations, 0 ≤ unmatched ≤ matched ≤ 1",
-                self.class
-            )));
+            return Err(NnError::config(
+                "head.anchors",
+                format!(
+                    "anchors of {}: need positive sizes, finite bottom_z and rotations, 0 ≤ unmatched ≤ matched ≤ 1",
+                    self.class
+                ),
+            ));
         }
         Ok(())
     }

@@ -132,7 +132,7 @@ impl PacketFormat {
     /// message giving both sizes: a row shorter than the packet cannot hold it, and a longer one
     /// means the metadata describes another packet layout (profile, beams, columns per packet)
     /// than the recording's, which a looser rule would decode into plausible-looking garbage.
-    pub fn row_padding(&self, row_bytes: usize) -> std::result::Result<usize, String> {
+    pub fn row_padding(&self, row_bytes: usize) -> Result<usize, String> {
         let packet = self.packet_bytes();
         match row_bytes.checked_sub(packet) {
             Some(pad) if pad == 0 || pad == ROS_PACKET_PAD_BYTES => Ok(pad),

@@ -10,8 +10,8 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
     let target_shift = c.target_shift;
     let adapt_epochs = c.adapt_epochs;
     let mut outcome = Outcome::default();
-    let ck = c.source_model(&with_ros, log)?;
-    let mut det = load(&ck, Some(&c.on_target(&with_ros)), device)?;
+    let ck = c.source_model(with_ros, log)?;
+    let mut det = load(&ck, Some(&c.on_target(with_ros)), device)?;
     let st = self_training_config(method, adapt_epochs);
     let mut checkpoints = vec![ck.clone()];
     for round in 0..method.rounds.max(1) {
@@ -25,8 +25,8 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
         let tracking = TrackingConfig::default();
         let e = ensemble(
             &EnsembleOptions {
-                subset: &target,
-                infos: &target_infos,
+                subset: target,
+                infos: target_infos,
                 checkpoints: &checkpoints,
                 views: &views,
                 level: pi3det_nn::preprocess::Level::Off,
@@ -63,7 +63,7 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
             config: st.clone(),
             source: None,
             target: target.clone(),
-            target_gt: Some(&target_infos),
+            target_gt: Some(target_infos),
             device,
         };
         let round_dir = dir.join(format!("round_{}", round + 1));

@@ -9,7 +9,7 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
     let device = c.device;
     let mut outcome = Outcome::default();
     let source = ctx.split(&task.source, true, log)?;
-    let (s, t) = (mean_sizes(&source.infos()?, &base), mean_sizes(&target_infos, &base));
+    let (s, t) = (mean_sizes(&source.infos()?, base), mean_sizes(target_infos, base));
     let mut sn = StatisticalNormalizationConfig::default();
     for (class, (ts, _)) in &t {
         if let Some((ss, _)) = s.get(class) {

@@ -9,7 +9,7 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
     let device = c.device;
     let adapt_epochs = c.adapt_epochs;
     let mut outcome = Outcome::default();
-    let ck = c.source_model(&with_ros, log)?;
+    let ck = c.source_model(with_ros, log)?;
     let pp = method.kind == MethodKind::St3dPp;
     // ST3D++ ranks pseudo-labels by its hybrid score (no weights involved: same checkpoint).
     let mut cfg = with_ros.clone();
@@ -38,9 +38,9 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
         if kind != MethodKind::Redb {
             return Ok(labels);
         }
-        super::redb::redb_select(d, target_ref, labels, labels_cfg.positive_score, &redb_cfg)
+        redb::redb_select(d, target_ref, labels, labels_cfg.positive_score, &redb_cfg)
     };
-    let runner = SelfTraining { config: st, source, target: target.clone(), target_gt: Some(&target_infos), device };
+    let runner = SelfTraining { config: st, source, target: target.clone(), target_gt: Some(target_infos), device };
     let r = runner.run(&mut det, &mut labeller, &dir.join("self_training"), &mut |_| {})?;
     log_rounds(log, &r);
     outcome.pseudo_labels = rounds_json(&r);
