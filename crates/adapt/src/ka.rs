@@ -34,12 +34,18 @@ pub struct KaConfig {
     /// Peak learning rate of KA's own one-cycle schedule (the rest of the schedule is the
     /// detector's `train` section).
     pub lr: f64,
+    /// Share of the pre-adapted weights in the shipped model: after the last epoch every weight
+    /// becomes `(1 − pa_weight)·KA + pa_weight·PA` (WiSE-FT's weight-space ensemble; 0: the KA
+    /// weights as trained). Self-training on a model's own pseudo-labels also teaches it their
+    /// misses as background; averaging with the model they came from keeps what KA adds on the
+    /// target without all of what it unlearns.
+    pub pa_weight: f64,
 }
 
 impl Default for KaConfig {
     fn default() -> Self {
         // ST3D self-trains at half the source learning rate.
-        Self { epochs: 2, lr: 0.0015 }
+        Self { epochs: 2, lr: 0.0015, pa_weight: 0.0 }
     }
 }
 
@@ -47,6 +53,12 @@ impl KaConfig {
     pub fn validate(&self) -> Result<()> {
         if self.epochs == 0 || !(self.lr.is_finite() && self.lr > 0.0) {
             return Err(NnError::config("ka", format!("ka: epochs must be positive and lr > 0 (got {self:?})")));
+        }
+        if !(0.0..1.0).contains(&self.pa_weight) {
+            return Err(NnError::config(
+                "ka.pa_weight",
+                format!("ka.pa_weight must be in [0, 1) (got {})", self.pa_weight),
+            ));
         }
         Ok(())
     }

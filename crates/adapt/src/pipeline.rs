@@ -643,7 +643,8 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
             last_loss: Some(mean_loss),
             stage: Some("ka".into()),
         };
-        let path = if epoch + 1 == cfg.ka.epochs {
+        // With a PA share the last epoch is a checkpoint of its own and `final` the blend.
+        let path = if epoch + 1 == cfg.ka.epochs && cfg.ka.pa_weight == 0.0 {
             final_path.clone()
         } else {
             ka_dir.join(format!("checkpoint_epoch_{}.safetensors", epoch + 1))
@@ -654,6 +655,24 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     if start >= cfg.ka.epochs && final_path.exists() {
         let ck = checkpoint::load(&final_path)?;
         ck.load_into(&mut det, &final_path)?;
+    } else if cfg.ka.pa_weight > 0.0 {
+        let pa = checkpoint::load(&pa_path)?;
+        pa.blend_into(&mut det, &pa_path, cfg.ka.pa_weight)?;
+        on_event(AdaptEvent::Message(format!(
+            "KA: the shipped weights are {:.2} × KA + {:.2} × PA ({})",
+            1.0 - cfg.ka.pa_weight,
+            cfg.ka.pa_weight,
+            final_path.display()
+        )));
+        let state = TrainState {
+            epoch: cfg.ka.epochs,
+            step: ka.optim.step,
+            total_steps: ka.total_steps,
+            train_seconds: t_ka.elapsed().as_secs_f64(),
+            last_loss: report.ka_epochs.last().map(|e| e.mean_loss),
+            stage: Some("ka".into()),
+        };
+        checkpoint::save(&final_path, &det, None, &state)?;
     }
     report.ka_seconds = t_ka.elapsed().as_secs_f64();
     report.final_checkpoint = Some(final_path.clone());

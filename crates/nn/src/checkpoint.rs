@@ -135,6 +135,15 @@ impl Checkpoint {
     /// Copies `model.*` tensors into the detector's variables; every variable must be present
     /// with its shape.
     pub fn load_into(&self, detector: &mut Detector, path: &Path) -> Result<()> {
+        self.blend_into(detector, path, 1.0)
+    }
+
+    /// Moves the detector's floating-point variables (weights and batch-norm statistics) the
+    /// share `weight` of the way to this checkpoint's: `var ← (1 − weight)·var + weight·ckpt`
+    /// (integer buffers are copied). `weight` 1 is [`load_into`](Self::load_into); between 0 and
+    /// 1 it is a weight-space ensemble of two fine-tunings of one network (WiSE-FT, Wortsman et
+    /// al. 2022), which Knowledge-Adaptation uses to keep part of the pre-adapted model.
+    pub fn blend_into(&self, detector: &mut Detector, path: &Path, weight: f64) -> Result<()> {
         let vars = detector.vs.variables();
         tch::no_grad(|| -> Result<()> {
             for (name, mut var) in vars {
@@ -149,7 +158,13 @@ impl Checkpoint {
                         message: format!("{key} has shape {:?}, the model {:?}", src.size(), var.size()),
                     });
                 }
-                var.f_copy_(&src.to_device(var.device()).to_kind(var.kind()))?;
+                let src = src.to_device(var.device()).to_kind(var.kind());
+                if weight >= 1.0 || !var.is_floating_point() {
+                    var.f_copy_(&src)?;
+                } else {
+                    let mixed = &var * (1.0 - weight) + src * weight;
+                    var.f_copy_(&mixed)?;
+                }
             }
             Ok(())
         })

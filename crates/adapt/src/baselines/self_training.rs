@@ -64,7 +64,7 @@ impl Default for SelfTrainingConfig {
 impl SelfTrainingConfig {
     pub fn validate(&self) -> Result<()> {
         self.labels.validate()?;
-        KaConfig { epochs: self.epochs, lr: self.lr }.validate()?;
+        KaConfig { epochs: self.epochs, lr: self.lr, pa_weight: 0.0 }.validate()?;
         if self.ds_norm && !self.source_assisted {
             return Err(NnError::config(
                 "self_training",
@@ -171,7 +171,11 @@ impl SelfTraining<'_> {
         let bev = [r[0], r[1], r[3], r[4]];
         let pos = cfg.labels.positive_score;
         let mut norms = cfg.ds_norm.then(|| DomainNorms::new(&det.vs));
-        let mut ka = KnowledgeAdaptation::new(det, &KaConfig { epochs: cfg.epochs, lr: cfg.lr }, self.target.len());
+        let mut ka = KnowledgeAdaptation::new(
+            det,
+            &KaConfig { epochs: cfg.epochs, lr: cfg.lr, pa_weight: 0.0 },
+            self.target.len(),
+        );
         let mut report = SelfTrainingReport::default();
         let mut mem: Vec<Vec<MemoryBox>> = Vec::new();
         let mut labels: Vec<FrameDetections> = Vec::new();
