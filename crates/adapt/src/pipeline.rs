@@ -589,8 +589,12 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
             return Err(NnError::Checkpoint { path: p.clone(), message: "is not a KA checkpoint".into() });
         }
         ck.load_into(&mut det, p)?;
-        ka.optim.load_state(&ck.tensors, ck.state.step)?;
         start = ck.state.epoch;
+        // The last epoch's checkpoint keeps no optimiser state (nothing is left to train; with a
+        // PA share only the blend is).
+        if start < cfg.ka.epochs {
+            ka.optim.load_state(&ck.tensors, ck.state.step)?;
+        }
         on_event(AdaptEvent::Message(format!("KA resumes after epoch {start} ({})", p.display())));
     }
     let mut target = target_data(&labels)?;

@@ -162,6 +162,30 @@ fn stages_run_and_resume_across_pa_ka_reproduces_an_uninterrupted_run() {
     for ((na, ta), (_, tb)) in wa.iter().zip(&weights(&b.join("ka/final.safetensors"))) {
         assert!(ta.equal(tb), "{na} differs after resuming inside KA");
     }
+
+    // With a PA share (`ka.pa_weight`) the last epoch is kept as a checkpoint and `final` is the
+    // blend of it with the PA weights, also when a run resumes after its last epoch.
+    let mut shared = cfg.clone();
+    shared.ka.pa_weight = 0.5;
+    let c = d.root.join("c");
+    pipeline::run(options(&shared, &d, &c), &mut |_| {}).unwrap();
+    let last = c.join(format!("ka/checkpoint_epoch_{}.safetensors", cfg.ka.epochs));
+    let pa = weights(&c.join("pa/final.safetensors"));
+    let blended = weights(&c.join("ka/final.safetensors"));
+    for (((n, ka), (_, p)), (_, f)) in weights(&last).iter().zip(&pa).zip(&blended) {
+        assert!(ka.equal(&wa.iter().find(|(m, _)| m == n).unwrap().1), "{n}: KA's last epoch as without the share");
+        if f.is_floating_point() {
+            let want = ka * 0.5 + p * 0.5;
+            assert!((f - want).abs().max().double_value(&[]) < 1e-5, "{n} is not the blend");
+        }
+    }
+    std::fs::remove_file(c.join("ka/final.safetensors")).unwrap();
+    let mut o = options(&shared, &d, &c);
+    o.resume = true;
+    pipeline::run(o, &mut |_| {}).unwrap();
+    for ((n, x), (_, y)) in blended.iter().zip(&weights(&c.join("ka/final.safetensors"))) {
+        assert!(x.equal(y), "{n}: blending again after the last epoch differs");
+    }
 }
 
 #[test]
