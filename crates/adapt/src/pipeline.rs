@@ -600,6 +600,15 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     let mut target = target_data(&labels)?;
     report.pseudo_labels = labels.iter().map(|f| f.objects.iter().filter(|o| o.score >= Some(pos)).count()).sum();
     let refresh = cfg.pseudo_labels.refresh_every;
+    // A KA checkpoint's training state after `epochs` epochs.
+    let ka_state = |ka: &KnowledgeAdaptation, epochs: usize, last_loss: Option<f64>| TrainState {
+        epoch: epochs,
+        step: ka.optim.step,
+        total_steps: ka.total_steps,
+        train_seconds: t_ka.elapsed().as_secs_f64(),
+        last_loss,
+        stage: Some("ka".into()),
+    };
     for epoch in start..cfg.ka.epochs {
         if refresh > 0 && epoch > 0 && epoch % refresh == 0 && epoch != start {
             checkpoint::save(
@@ -639,14 +648,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         };
         report.ka_epochs.push(summary);
         on_event(AdaptEvent::KaEpoch(summary));
-        let state = TrainState {
-            epoch: epoch + 1,
-            step: ka.optim.step,
-            total_steps: ka.total_steps,
-            train_seconds: t_ka.elapsed().as_secs_f64(),
-            last_loss: Some(mean_loss),
-            stage: Some("ka".into()),
-        };
+        let state = ka_state(&ka, epoch + 1, Some(mean_loss));
         // With a PA share the last epoch is a checkpoint of its own and `final` the blend.
         let path = if epoch + 1 == cfg.ka.epochs && cfg.ka.pa_weight == 0.0 {
             final_path.clone()
@@ -668,14 +670,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
             cfg.ka.pa_weight,
             final_path.display()
         )));
-        let state = TrainState {
-            epoch: cfg.ka.epochs,
-            step: ka.optim.step,
-            total_steps: ka.total_steps,
-            train_seconds: t_ka.elapsed().as_secs_f64(),
-            last_loss: report.ka_epochs.last().map(|e| e.mean_loss),
-            stage: Some("ka".into()),
-        };
+        let state = ka_state(&ka, cfg.ka.epochs, report.ka_epochs.last().map(|e| e.mean_loss));
         checkpoint::save(&final_path, &det, None, &state)?;
     }
     report.ka_seconds = t_ka.elapsed().as_secs_f64();
