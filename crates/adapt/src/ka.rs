@@ -40,12 +40,16 @@ pub struct KaConfig {
     /// misses as background; averaging with the model they came from keeps what KA adds on the
     /// target without all of what it unlearns.
     pub pa_weight: f64,
+    /// Parts of the detector KA leaves as Pre-Adaptation trained them: variable-name prefixes
+    /// (`vfe`, `backbone_2d`, `neck`, `dense_head`, `roi_head`, …). Their batch-norm statistics
+    /// still follow KA's batches.
+    pub frozen: Vec<String>,
 }
 
 impl Default for KaConfig {
     fn default() -> Self {
         // ST3D self-trains at half the source learning rate.
-        Self { epochs: 2, lr: 0.0015, pa_weight: 0.0 }
+        Self { epochs: 2, lr: 0.0015, pa_weight: 0.0, frozen: Vec::new() }
     }
 }
 
@@ -60,7 +64,24 @@ impl KaConfig {
                 format!("ka.pa_weight must be in [0, 1) (got {})", self.pa_weight),
             ));
         }
+        if let Some(p) = self.frozen.iter().find(|p| p.is_empty() || p.starts_with('.')) {
+            return Err(NnError::config("ka.frozen", format!("ka.frozen: {p:?} is not a part of the detector")));
+        }
         Ok(())
+    }
+
+    /// The detector's variables KA trains: all but the [`frozen`](Self::frozen) parts. Refuses a
+    /// prefix that names no variable (a typo would otherwise freeze nothing).
+    pub fn trainables(&self, det: &Detector) -> Result<Vec<(String, tch::Tensor)>> {
+        let all = det.named_trainables();
+        let hits = |p: &str, n: &str| n == p || n.starts_with(&format!("{p}."));
+        if let Some(p) = self.frozen.iter().find(|p| !all.iter().any(|(n, _)| hits(p, n))) {
+            return Err(NnError::config(
+                "ka.frozen",
+                format!("ka.frozen: no trainable variable of the detector is under {p:?}"),
+            ));
+        }
+        Ok(all.into_iter().filter(|(n, _)| !self.frozen.iter().any(|p| hits(p, n))).collect())
     }
 
     /// The detector's training settings with KA's schedule.
@@ -109,18 +130,18 @@ pub struct KnowledgeAdaptation {
 }
 
 impl KnowledgeAdaptation {
-    pub fn new(det: &Detector, cfg: &KaConfig, target_frames: usize) -> Self {
+    pub fn new(det: &Detector, cfg: &KaConfig, target_frames: usize) -> Result<Self> {
         let train = cfg.train_config(&det.cfg().train);
         let steps_per_epoch = (target_frames / train.batch_size).max(1);
         let total_steps = steps_per_epoch * cfg.epochs;
-        Self {
-            optim: Optimizer::new(det.named_trainables(), &train),
+        Ok(Self {
+            optim: Optimizer::new(cfg.trainables(det)?, &train),
             schedule: OneCycle::new(&train, total_steps),
             train,
             steps_per_epoch,
             total_steps,
             negatives: None,
-        }
+        })
     }
 
     /// Target batches' background under `cfg` ([`pi3det_nn::losses::target_negatives`]; when enabled), with
@@ -278,4 +299,27 @@ fn domain_pass(
     };
     let z = det.latent(&out, domain).transpose()?;
     Ok((losses.total(), z))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use pi3det_nn::testing::tiny_detector;
+
+    #[test]
+    fn frozen_parts_leave_the_optimiser_and_a_wrong_name_is_refused() {
+        let det = Detector::new(&tiny_detector(12.8, 0.8), Device::Cpu).unwrap();
+        let all = KaConfig::default().trainables(&det).unwrap();
+        assert_eq!(all.len(), det.named_trainables().len(), "nothing frozen by default");
+        let cfg = KaConfig { frozen: vec!["vfe".into(), "backbone_2d".into()], ..Default::default() };
+        let kept = cfg.trainables(&det).unwrap();
+        assert!(!kept.is_empty() && kept.len() < all.len());
+        assert!(kept.iter().all(|(n, _)| !n.starts_with("vfe.") && !n.starts_with("backbone_2d.")), "{kept:?}");
+        assert!(kept.iter().any(|(n, _)| n.starts_with("dense_head.")));
+        // A prefix must name a whole part: `backbone` is not `backbone_2d`.
+        let typo = KaConfig { frozen: vec!["backbone".into()], ..Default::default() };
+        let e = typo.trainables(&det).unwrap_err().to_string();
+        assert!(e.contains("ka.frozen") && e.contains("\"backbone\""), "{e}");
+        assert!(KaConfig { frozen: vec![String::new()], ..Default::default() }.validate().is_err());
+    }
 }

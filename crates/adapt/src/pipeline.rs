@@ -580,7 +580,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         let subset = PseudoLabeled::new(&opts.target, labels)?.subset(&opts.target);
         Ok(DomainData { subset, prep: Arc::new(target_prep(true)?), augments: target_augments.clone() })
     };
-    let mut ka = KnowledgeAdaptation::new(&det, &cfg.ka, opts.target.len())
+    let mut ka = KnowledgeAdaptation::new(&det, &cfg.ka, opts.target.len())?
         .with_target_negatives(&cfg.target_negatives, cfg.pseudo_labels.ignore_score);
     let mut start = 0;
     if let Some(p) = &resume_ka {

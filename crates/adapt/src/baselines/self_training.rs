@@ -64,7 +64,7 @@ impl Default for SelfTrainingConfig {
 impl SelfTrainingConfig {
     /// The KA loop's settings this self-training runs with (the trained weights as they are).
     fn ka(&self) -> KaConfig {
-        KaConfig { epochs: self.epochs, lr: self.lr, pa_weight: 0.0 }
+        KaConfig { epochs: self.epochs, lr: self.lr, ..KaConfig::default() }
     }
 
     pub fn validate(&self) -> Result<()> {
@@ -176,7 +176,7 @@ impl SelfTraining<'_> {
         let bev = [r[0], r[1], r[3], r[4]];
         let pos = cfg.labels.positive_score;
         let mut norms = cfg.ds_norm.then(|| DomainNorms::new(&det.vs));
-        let mut ka = KnowledgeAdaptation::new(det, &cfg.ka(), self.target.len());
+        let mut ka = KnowledgeAdaptation::new(det, &cfg.ka(), self.target.len())?;
         let mut report = SelfTrainingReport::default();
         let mut mem: Vec<Vec<MemoryBox>> = Vec::new();
         let mut labels: Vec<FrameDetections> = Vec::new();
