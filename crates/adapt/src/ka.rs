@@ -36,9 +36,9 @@ pub struct KaConfig {
     pub lr: f64,
     /// Share of the pre-adapted weights in the shipped model: after the last epoch every weight
     /// becomes `(1 − pa_weight)·KA + pa_weight·PA` (WiSE-FT's weight-space ensemble; 0: the KA
-    /// weights as trained). Self-training on a model's own pseudo-labels also teaches it their
-    /// misses as background; averaging with the model they came from keeps what KA adds on the
-    /// target without all of what it unlearns.
+    /// weights as trained). Self-training on a model's own pseudo-labels can take it below
+    /// where it started on a target (the demo's quadruped); averaging with the model the labels
+    /// came from keeps part of what KA adds without all of what it loses.
     pub pa_weight: f64,
     /// Parts of the detector KA leaves as Pre-Adaptation trained them: variable-name prefixes
     /// (`vfe`, `backbone_2d`, `neck`, `dense_head`, `roi_head`, …). Their batch-norm statistics
@@ -130,12 +130,22 @@ pub struct KnowledgeAdaptation {
 }
 
 impl KnowledgeAdaptation {
+    /// The optimiser takes [`KaConfig::trainables`]; the frozen parts' variables stop requiring
+    /// gradients, so backward neither computes nor accumulates any for them.
     pub fn new(det: &Detector, cfg: &KaConfig, target_frames: usize) -> Result<Self> {
         let train = cfg.train_config(&det.cfg().train);
         let steps_per_epoch = (target_frames / train.batch_size).max(1);
         let total_steps = steps_per_epoch * cfg.epochs;
+        let trained = cfg.trainables(det)?;
+        if trained.len() < det.named_trainables().len() {
+            for (name, t) in det.named_trainables() {
+                if !trained.iter().any(|(n, _)| *n == name) {
+                    let _ = t.set_requires_grad(false);
+                }
+            }
+        }
         Ok(Self {
-            optim: Optimizer::new(cfg.trainables(det)?, &train),
+            optim: Optimizer::new(trained, &train),
             schedule: OneCycle::new(&train, total_steps),
             train,
             steps_per_epoch,
@@ -316,6 +326,11 @@ mod tests {
         assert!(!kept.is_empty() && kept.len() < all.len());
         assert!(kept.iter().all(|(n, _)| !n.starts_with("vfe.") && !n.starts_with("backbone_2d.")), "{kept:?}");
         assert!(kept.iter().any(|(n, _)| n.starts_with("dense_head.")));
+        KnowledgeAdaptation::new(&det, &cfg, 4).unwrap();
+        for (n, t) in det.named_trainables() {
+            let frozen = n.starts_with("vfe.") || n.starts_with("backbone_2d.");
+            assert_eq!(t.requires_grad(), !frozen, "{n}: gradients only for what KA trains");
+        }
         // A prefix must name a whole part: `backbone` is not `backbone_2d`.
         let typo = KaConfig { frozen: vec!["backbone".into()], ..Default::default() };
         let e = typo.trainables(&det).unwrap_err().to_string();

@@ -369,6 +369,10 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         }
     }
     check_classes(&opts.source, det_cfg, "the source")?;
+    // `ka.frozen` names parts of this detector: a typo is refused now, not after PA.
+    if !cfg.ka.frozen.is_empty() {
+        cfg.ka.trainables(&Detector::new(det_cfg, Device::Cpu)?)?;
+    }
     // The target's infos, read once: class check, pose check, pseudo-label quality.
     let target_infos = opts.target.infos()?;
     check_class_names(&target_infos, det_cfg, "the target")?;

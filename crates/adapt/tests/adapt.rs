@@ -47,6 +47,24 @@ fn weights(path: &Path) -> Vec<(String, Tensor)> {
     v
 }
 
+/// `ka/final.safetensors` removed and the run resumed from its checkpoints: the new final weights.
+fn rerun_final(cfg: &AdaptConfig, d: &Data, out: &Path) -> Vec<(String, Tensor)> {
+    let path = out.join("ka/final.safetensors");
+    std::fs::remove_file(&path).unwrap();
+    let mut o = options(cfg, d, out);
+    o.resume = true;
+    pipeline::run(o, &mut |_| {}).unwrap();
+    weights(&path)
+}
+
+fn assert_same(a: &[(String, Tensor)], b: &[(String, Tensor)], what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}: another number of tensors");
+    for ((na, ta), (nb, tb)) in a.iter().zip(b) {
+        assert_eq!(na, nb);
+        assert!(ta.equal(tb), "{na} differs {what}");
+    }
+}
+
 struct Data {
     _dir: tempfile::TempDir,
     root: std::path::PathBuf,
@@ -147,21 +165,11 @@ fn stages_run_and_resume_across_pa_ka_reproduces_an_uninterrupted_run() {
         std::fs::read_to_string(b.join("pseudo_labels.jsonl")).unwrap(),
     );
     assert_eq!(la, lb, "pseudo-labels differ");
-    let (wa, wb) = (weights(&a.join("ka/final.safetensors")), weights(&b.join("ka/final.safetensors")));
-    assert_eq!(wa.len(), wb.len());
-    for ((na, ta), (nb, tb)) in wa.iter().zip(&wb) {
-        assert_eq!(na, nb);
-        assert!(ta.equal(tb), "{na} differs after resuming across PA → KA");
-    }
+    let wa = weights(&a.join("ka/final.safetensors"));
+    assert_same(&wa, &weights(&b.join("ka/final.safetensors")), "after resuming across PA → KA");
 
     // Resumed from KA's epoch-1 checkpoint (the final one removed): same weights again.
-    std::fs::remove_file(b.join("ka/final.safetensors")).unwrap();
-    let mut o = options(&cfg, &d, &b);
-    o.resume = true;
-    pipeline::run(o, &mut |_| {}).unwrap();
-    for ((na, ta), (_, tb)) in wa.iter().zip(&weights(&b.join("ka/final.safetensors"))) {
-        assert!(ta.equal(tb), "{na} differs after resuming inside KA");
-    }
+    assert_same(&wa, &rerun_final(&cfg, &d, &b), "after resuming inside KA");
 
     // With a PA share (`ka.pa_weight`) the last epoch is kept as a checkpoint and `final` is the
     // blend of it with the PA weights, also when a run resumes after its last epoch.
@@ -179,13 +187,7 @@ fn stages_run_and_resume_across_pa_ka_reproduces_an_uninterrupted_run() {
             assert!((f - want).abs().max().double_value(&[]) < 1e-5, "{n} is not the blend");
         }
     }
-    std::fs::remove_file(c.join("ka/final.safetensors")).unwrap();
-    let mut o = options(&shared, &d, &c);
-    o.resume = true;
-    pipeline::run(o, &mut |_| {}).unwrap();
-    for ((n, x), (_, y)) in blended.iter().zip(&weights(&c.join("ka/final.safetensors"))) {
-        assert!(x.equal(y), "{n}: blending again after the last epoch differs");
-    }
+    assert_same(&blended, &rerun_final(&shared, &d, &c), "when blending again after the last epoch");
 }
 
 #[test]
@@ -230,6 +232,14 @@ fn bad_input_is_refused_before_anything_is_written() {
     let err = run(o);
     assert!(err.contains("another architecture") && err.contains("neck"), "{err}");
     assert!(!d.root.join("with_pa").exists(), "nothing written");
+
+    // `ka.frozen` naming no part of the detector: refused before PA, not after it.
+    let mut typo = cfg.clone();
+    typo.ka.frozen = vec!["backbone2d".into()];
+    let out = d.root.join("typo");
+    let err = run(options(&typo, &d, &out));
+    assert!(err.contains("ka.frozen") && err.contains("backbone2d"), "{err}");
+    assert!(!out.exists(), "nothing written");
 }
 
 /// Issue 47: a target where the PA model is sure of nothing. Its pseudo-labels hold no
