@@ -11,8 +11,11 @@
 //! with roll r and pitch p over level ground, the world's up axis seen in the LiDAR frame is
 //! `(-sin p, sin r cos p, cos r cos p)`, which is the fitted ground normal.
 
+pub mod local;
 pub mod plane;
 pub mod smoothing;
+
+pub use local::{LabelGroundCheck, LocalGround};
 
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use pi3det_geometry::{level_from_sensor, Pose, RollPitchYaw};

@@ -12,6 +12,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use pi3det_geometry::{bev_iou, Box3d};
+use pi3det_ground::LocalGround;
 use rand::seq::SliceRandom;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
@@ -212,29 +213,10 @@ impl Augment for GtSampling {
     }
 }
 
-/// The ground height under `b` in a frame: a low quantile of the z of the points around the
-/// box's footprint (not inside it: those belong to whatever stands there). `None` when too few
-/// points are near (far away, or nothing but sky).
+/// The ground height under `b` in a frame, found as the config says ([`LocalGround`]).
 pub fn local_ground_z(points: &[[f32; 4]], b: &Box3d, cfg: &GtSamplingConfig) -> Option<f64> {
-    let r = b.bev_radius();
-    let footprint = Box3d { z: 0.0, dz: f64::MAX, ..*b };
-    for margin in [cfg.ground_margin_m, 2.0 * cfg.ground_margin_m] {
-        let reach = r + margin;
-        let mut zs: Vec<f32> = points
-            .iter()
-            .filter(|p| {
-                let (ex, ey) = (p[0] as f64 - b.x, p[1] as f64 - b.y);
-                ex * ex + ey * ey <= reach * reach && !footprint.contains([p[0] as f64, p[1] as f64, 0.0])
-            })
-            .map(|p| p[2])
-            .collect();
-        if zs.len() >= cfg.min_ground_points.max(1) {
-            let k = ((zs.len() - 1) as f64 * cfg.ground_quantile.clamp(0.0, 1.0)).round() as usize;
-            let (_, z, _) = zs.select_nth_unstable_by(k, f32::total_cmp);
-            return Some(*z as f64);
-        }
-    }
-    None
+    LocalGround { margin_m: cfg.ground_margin_m, quantile: cfg.ground_quantile, min_points: cfg.min_ground_points }
+        .z(points, b)
 }
 
 #[cfg(test)]
