@@ -169,11 +169,14 @@ fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<()> {
     pi3det_data::io::write_atomic(&dir.join(name), bytes, true).with_context(|| format!("writing {name}"))
 }
 
+/// Each labelled box's local ground height (`None`: not checked or none found), by frame id.
+type GroundByFrame = HashMap<String, Vec<Option<f64>>>;
+
 /// The labelled cars of every frame against the ground around them, and each car's local ground
 /// height by frame id (`None` for other classes and where no ground was found). Cars only: the
 /// ground around a pedestrian is often hidden by the crowd or the parked cars beside it, so its
 /// estimate is not to be trusted.
-fn label_ground(ds: &dyn Dataset) -> Result<(LabelGroundCheck, HashMap<String, Vec<Option<f64>>>)> {
+fn label_ground(ds: &dyn Dataset) -> Result<(LabelGroundCheck, GroundByFrame)> {
     let ground = LocalGround::default();
     let mut check = LabelGroundCheck::default();
     let mut per_frame = HashMap::new();
