@@ -97,6 +97,7 @@ impl SimConfig {
                 .map_err(|e| SimError::invalid(format!("randomise.sensors: {e}")))?;
         }
         self.scene.validate()?;
+        self.actors.validate()?;
         self.vehicle.validate("vehicle")?;
         self.drone.validate("drone")?;
         self.quadruped.validate("quadruped")?;
@@ -159,6 +160,21 @@ fn merge(base: &mut toml::Table, user: toml::Table) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pedestrian_groups_out_of_range_are_refused() {
+        for bad in [
+            "pedestrian_group_share = 1.5",
+            "pedestrian_group_size = [3, 1]",
+            "pedestrian_group_spacing_m = [0.2, 0.4]",
+        ] {
+            let cfg = SimConfig::from_toml_str(&format!("[actors]\n{bad}\n")).unwrap();
+            let e = cfg.validate().unwrap_err().to_string();
+            assert!(e.contains("actors.pedestrian_group"), "{bad}: {e}");
+        }
+        let ok = SimConfig::from_toml_str("[actors]\npedestrian_group_share = 0.3\n").unwrap();
+        assert!(ok.validate().is_ok());
+    }
 
     #[test]
     fn partial_toml_keeps_platform_presets() {
