@@ -35,6 +35,9 @@ fn every_method_runs_resumes_and_shards_merge_to_one_run() {
     assert!(
         !st3d.pseudo_labels.is_empty() && st3d.pseudo_labels[0]["quality"].as_array().is_some_and(|q| !q.is_empty())
     );
+    // Target-only: the source model's step budget, in levelled target frames.
+    let log = std::fs::read_to_string(out.join("cells/v2q__target_only__tiny/log.txt")).unwrap();
+    assert!(log.contains("for the source model's 3 steps") && log.contains("levelled to a 1.90 m"), "{log}");
     for f in ["benchmark.md", "benchmark.csv", "benchmark.json", "gap_closed.png"] {
         assert!(out.join(f).is_file(), "{f}");
     }
@@ -86,7 +89,7 @@ fn a_failing_cell_is_reported_and_the_others_run() {
     let data = std::fs::read_dir(out.join("data"))
         .unwrap()
         .flatten()
-        .find(|e| e.file_name().to_string_lossy().starts_with("quad_"))
+        .find(|e| e.file_name().to_string_lossy().starts_with("quad_val_") && e.path().is_dir())
         .unwrap();
     std::fs::remove_file(data.path().join("quadruped/val/pi3det_infos_val.pkl")).unwrap();
     let results = benchmark::run(&BenchmarkArgs { force: true, ..args(&suite, &out) }).unwrap();
@@ -120,6 +123,25 @@ fn bad_suites_are_refused_naming_the_problem() {
     check(good.replace("platform = \"vehicle\"", "platform = \"boat\""), "boat");
     check(good.replace("[[methods]]\nkind = \"pi3det_net\"", "[[methods]]\nkind = \"source_only\""), "appears twice");
     assert!(Suite::from_toml_str(&good, &path).is_ok());
+
+    // Rows that would differ by their post-processing too: refused unless asked, then flagged.
+    let mut other = common::tiny_detector();
+    other.post.tta = Some(Default::default());
+    std::fs::write(dir.path().join("other.toml"), other.to_toml()).unwrap();
+    let mixed = good.replace("config = \"det.toml\"", "config = \"other.toml\"");
+    check(mixed.clone(), "post-processes otherwise");
+    let flagged = Suite::from_toml_str(
+        &mixed.replace("pi3det_net = \"net.toml\"", "pi3det_net = \"net.toml\"\nmixed_post = true"),
+        &path,
+    )
+    .unwrap();
+    assert!(flagged.detectors["tiny"].mixed_post);
+    assert!(benchmark::table::markdown(&flagged, &[]).contains("post-process otherwise than Pi3DET-Net"));
+    // Without `config` the baselines run the Pi3DET-Net detector less its components.
+    let derived = Suite::from_toml_str(&good.replace("config = \"det.toml\"\n", ""), &path).unwrap();
+    let d = &derived.detectors["tiny"];
+    assert!(!d.mixed_post && d.config.neck.is_none() && d.config.pfa.is_none());
+    assert_eq!(d.config.post, d.pi3det_net.as_ref().unwrap().detector.post);
 }
 
 #[test]
@@ -127,6 +149,14 @@ fn shipped_suites_parse() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/benchmark");
     let mini = Suite::from_file(&dir.join("mini.toml")).unwrap();
     assert_eq!(mini.cells().len(), 2 * 5);
+    // One network and post-processing for every row; a fixed, stratified validation of ≥ 12
+    // sequences per target; target-only as many steps as the source.
+    assert!(mini.detectors.values().all(|d| !d.mixed_post));
+    for t in &mini.tasks {
+        let sim = mini.datasets[&t.target].sim.as_ref().unwrap();
+        assert!(sim.val_sequences >= 12 && sim.val_seed.is_some(), "{}: {sim:?}", t.target);
+    }
+    assert!(mini.schedule.equal_steps);
     let paper = Suite::from_file(&dir.join("paper.toml")).unwrap();
     assert_eq!((paper.tasks.len(), paper.methods.len()), (8, 11));
     assert_eq!(paper.cells().len(), 88);

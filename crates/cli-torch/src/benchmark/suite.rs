@@ -30,10 +30,16 @@ struct SuiteFile {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct DetectorFile {
-    /// The detector's config (relative to the suite file).
-    config: PathBuf,
+    /// The baselines' detector config (relative to the suite file). Absent: the Pi3DET-Net
+    /// config's detector without its components (RPJ, GTD, PFA), so every row runs one network
+    /// and one post-processing and Pi3DET-Net adds only what the paper adds.
+    config: Option<PathBuf>,
     /// The Pi3DET-Net config on this detector (`pi3det adapt`'s), for the `pi3det_net` method.
     pi3det_net: Option<PathBuf>,
+    /// Accept a `config` whose post-processing (`[post]`, test-time augmentation, precision, RoI
+    /// head) differs from the Pi3DET-Net detector's; the table then flags the comparison.
+    #[serde(default)]
+    mixed_post: bool,
 }
 
 /// Where a dataset's frames come from.
@@ -70,6 +76,24 @@ pub struct SimSpec {
     pub frames: u32,
     /// Simulation seed (default: the suite's).
     pub seed: Option<u64>,
+    /// Simulate the validation split on its own from this seed, with stratified layouts (every
+    /// scene layout in turn), so it is the same for every suite seed; absent: the last
+    /// `val_sequences` of the training simulation.
+    pub val_seed: Option<u64>,
+}
+
+impl SimSpec {
+    /// What makes the `train` (or `val`) split of this dataset under suite seed `suite_seed`:
+    /// a split simulated from a fixed `val_seed` does not depend on the suite's seed.
+    pub fn split_key(&self, train: bool, suite_seed: u64) -> String {
+        match (train, self.val_seed) {
+            (false, Some(v)) => format!(
+                "{} {} × {} frames, {} val sequences, val seed {v} stratified",
+                self.platform, self.sensor, self.frames, self.val_sequences
+            ),
+            _ => format!("{self:?} seed {}", self.seed.unwrap_or(suite_seed)),
+        }
+    }
 }
 
 fn os1() -> String {
@@ -187,6 +211,17 @@ pub struct Schedule {
     /// ground lies where the source's did — the per-dataset `SHIFT_COOR` of ST3D's and OpenPCDet's
     /// cross-dataset configs. Off: every frame gets the detector config's `shift_z`.
     pub match_sensor_height: bool,
+    /// Target-only trains as many steps as the source model (its epochs scaled by the ratio of
+    /// the two training splits' sizes), not the same number of epochs over a smaller split.
+    pub equal_steps: bool,
+}
+
+/// Epochs over `frames` frames that take at least `steps` steps (one frame per step).
+pub fn epochs_for_steps(steps: usize, frames: usize) -> usize {
+    if frames == 0 {
+        return 0;
+    }
+    steps.div_ceil(frames).max(1)
 }
 
 /// A checked suite.
@@ -206,6 +241,25 @@ pub struct Suite {
 pub struct DetectorEntry {
     pub config: DetectorConfig,
     pub pi3det_net: Option<AdaptConfig>,
+    /// The baselines' post-processing differs from Pi3DET-Net's (`mixed_post`): flagged.
+    pub mixed_post: bool,
+}
+
+/// What decides a detector's boxes after training besides its weights: `[post]` (test-time
+/// augmentation included), the inference precision and the RoI head.
+fn post_processing(c: &DetectorConfig) -> String {
+    let mut out = toml::to_string(&c.post).unwrap_or_default();
+    out.push_str(&format!("\nprecision {:?}\n", c.precision));
+    out.push_str(&toml::to_string(&c.roi_head).unwrap_or_default());
+    out
+}
+
+/// The Pi3DET-Net config's detector without RPJ, GTD and PFA: the base every other row runs.
+pub fn base_detector(a: &AdaptConfig) -> DetectorConfig {
+    use pi3det_adapt::pipeline::Component;
+    let mut d = a.without(&[Component::Rpj, Component::Vpp, Component::Gtd, Component::Pfa]).detector;
+    d.name = format!("{}_base", d.name);
+    d
 }
 
 /// One job: a method with a detector on a task.
@@ -288,8 +342,6 @@ impl Suite {
             if slug(name) != *name {
                 bail!(ctx(format!("detector {name:?}: names must be lowercase [a-z0-9_]")));
             }
-            let config = DetectorConfig::from_file(&rel(&d.config))
-                .with_context(|| ctx(format!("detector {name}: config {}", rel(&d.config).display())))?;
             let pi3det_net = match &d.pi3det_net {
                 Some(p) => Some(
                     AdaptConfig::from_file(&rel(p))
@@ -300,7 +352,22 @@ impl Suite {
             if pi3det_net.is_none() && f.methods.iter().any(|m| m.kind == MethodKind::Pi3detNet) {
                 bail!(ctx(format!("detector {name}: the pi3det_net method needs a `pi3det_net` config for it")));
             }
-            detectors.insert(name.clone(), DetectorEntry { config, pi3det_net });
+            let config = match (&d.config, &pi3det_net) {
+                (Some(p), _) => DetectorConfig::from_file(&rel(p))
+                    .with_context(|| ctx(format!("detector {name}: config {}", rel(p).display())))?,
+                (None, Some(a)) => base_detector(a),
+                (None, None) => bail!(ctx(format!("detector {name}: give a `config`, a `pi3det_net` or both"))),
+            };
+            let mixed = pi3det_net.as_ref().is_some_and(|a| post_processing(&a.detector) != post_processing(&config));
+            if mixed && !d.mixed_post {
+                bail!(ctx(format!(
+                    "detector {name}: its `config` post-processes otherwise than the `pi3det_net` detector \
+                     (`[post]`, test-time augmentation, precision or RoI head differ), so rows would differ by more \
+                     than the method; leave `config` out (the Pi3DET-Net detector without its components) or \
+                     set `mixed_post = true` to compare anyway"
+                )));
+            }
+            detectors.insert(name.clone(), DetectorEntry { config, pi3det_net, mixed_post: mixed });
         }
         Ok(Self {
             name: f.name,
@@ -394,6 +461,34 @@ mod tests {
         for bad in ["0/2", "3/2", "1", "a/b", "1/0"] {
             assert!(bad.parse::<Shard>().is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn target_only_gets_the_source_models_steps() {
+        // The mini suite: 20 vehicle sequences × 30 frames for 3 epochs against 8 × 30 target frames.
+        let source_steps = 600 * 3;
+        let e = epochs_for_steps(source_steps, 240);
+        assert_eq!(e, 8);
+        assert!(e * 240 >= source_steps && (e - 1) * 240 < source_steps);
+        assert_eq!(epochs_for_steps(10, 20), 1);
+        assert_eq!(epochs_for_steps(10, 0), 0);
+    }
+
+    #[test]
+    fn a_validation_split_with_its_own_seed_is_the_same_for_every_suite_seed() {
+        let sim = SimSpec {
+            platform: "drone".into(),
+            sensor: "os1-64".into(),
+            sequences: 20,
+            val_sequences: 12,
+            frames: 30,
+            seed: None,
+            val_seed: Some(1000),
+        };
+        assert_eq!(sim.split_key(false, 0), sim.split_key(false, 1));
+        assert_ne!(sim.split_key(true, 0), sim.split_key(true, 1));
+        let joint = SimSpec { val_seed: None, ..sim };
+        assert_ne!(joint.split_key(false, 0), joint.split_key(false, 1));
     }
 
     #[test]

@@ -142,6 +142,7 @@ pub fn markdown(suite: &Suite, results: &[CellResult]) -> String {
             }
         }
     }
+    s += &notes(suite);
     let failed: Vec<&CellResult> = results.iter().filter(|r| r.status == Status::Failed).collect();
     if !failed.is_empty() {
         s += "\n## Failed cells\n\n";
@@ -156,6 +157,35 @@ pub fn markdown(suite: &Suite, results: &[CellResult]) -> String {
     }
     let total: f64 = results.iter().map(|r| r.seconds).sum();
     s += &format!("\n{} cells, {:.0} s of cell time.\n", results.len(), total);
+    s
+}
+
+/// What every row shares and where rows differ by more than their method.
+fn notes(suite: &Suite) -> String {
+    let mut s = String::from("\n## Notes\n\n");
+    for (name, d) in &suite.detectors {
+        if d.mixed_post {
+            s += &format!(
+                "- **`{name}`: the baselines post-process otherwise than Pi3DET-Net** (`mixed_post`): \
+                 their differences are not the methods' alone.\n"
+            );
+        } else {
+            s += &format!(
+                "- `{name}`: every row runs `{}` with one post-processing; Pi3DET-Net adds RPJ, VPP, GTD and PFA.\n",
+                d.config.name
+            );
+        }
+    }
+    let sch = &suite.schedule;
+    s += &format!(
+        "- Target-only trains on the target's frames, each levelled from its ground to the detector's sensor \
+         height{}.\n",
+        if sch.equal_steps { ", for as many steps as the source model (epochs scaled to its split)" } else { "" }
+    );
+    if sch.match_sensor_height {
+        s += "- Rows without VPP see each target shifted by the difference of the median sensor heights \
+              (one shift per dataset, ST3D's `SHIFT_COOR`).\n";
+    }
     s
 }
 

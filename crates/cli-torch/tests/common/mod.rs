@@ -50,9 +50,9 @@ pub fn write_suite(dir: &Path, methods: &[&str], st3d_epochs: usize) -> PathBuf 
     let mut s = String::from(
         "name = \"tiny\"\nseed = 1\n[detectors.tiny]\nconfig = \"det.toml\"\npi3det_net = \"net.toml\"\n\
          [datasets.veh]\nsim = { platform = \"vehicle\", sequences = 2, val_sequences = 1, frames = 3 }\n\
-         [datasets.quad]\nsim = { platform = \"quadruped\", sequences = 2, val_sequences = 1, frames = 3 }\n\
+         [datasets.quad]\nsim = { platform = \"quadruped\", sequences = 2, val_sequences = 1, frames = 3, val_seed = 7 }\n\
          [[tasks]]\nname = \"v2q\"\nsource = \"veh\"\ntarget = \"quad\"\n\
-         [schedule]\nepochs = 1\nadapt_epochs = 1\nmatch_sensor_height = true\n",
+         [schedule]\nepochs = 1\nadapt_epochs = 1\nmatch_sensor_height = true\nequal_steps = true\n",
     );
     for m in methods {
         s += &format!("[[methods]]\nkind = \"{m}\"\n");

@@ -34,7 +34,7 @@ use pi3det_nn::data_loader::Subset;
 use pi3det_nn::detect::FrameDetections;
 use pi3det_nn::eval::ApSummary;
 use pi3det_nn::preprocess::vpp::median_sensor_height;
-use pi3det_nn::preprocess::Preprocessor;
+use pi3det_nn::preprocess::{FrameTransform, Level, Preprocessor};
 use pi3det_nn::roi_heads::ScoreFusion;
 use pi3det_nn::{checkpoint, train, Detector};
 
@@ -107,20 +107,31 @@ impl Ctx<'_> {
         Ok(dir)
     }
 
-    /// The folder holding `dataset`'s `train` and `val` splits (simulated on first use).
-    fn dataset_root(&self, name: &str, log: &mut Log) -> Result<(PathBuf, DatasetSpec)> {
+    /// The folder holding `dataset`'s `train` (or `val`) split (simulated on first use; a
+    /// validation split with its own seed is simulated, and shared, on its own).
+    fn dataset_root(&self, name: &str, train: bool, log: &mut Log) -> Result<(PathBuf, DatasetSpec)> {
         let spec = self.suite.datasets[name].clone();
         if let Some(p) = &spec.path {
             return Ok((p.clone(), spec));
         }
         let sim = spec.sim.clone().expect("a checked suite's dataset is sim or path");
-        let seed = sim.seed.unwrap_or(self.suite.seed);
-        let key = format!("{sim:?} seed {seed}");
         let platform = Platform::parse(&sim.platform);
-        let dir = self.shared("data", name, &key, |dir| {
+        // Both splits at once from one seed unless the validation split has a seed of its own.
+        let (what, split, seed, stratify) = match (train, sim.val_seed) {
+            (false, Some(v)) => (format!("{name}_val"), Some("val"), v, true),
+            (true, Some(_)) => (format!("{name}_train"), Some("train"), sim.seed.unwrap_or(self.suite.seed), false),
+            (_, None) => (name.to_string(), None, sim.seed.unwrap_or(self.suite.seed), false),
+        };
+        let key = sim.split_key(train, self.suite.seed);
+        let dir = self.shared("data", &what, &key, |dir| {
             log.line(format!(
-                "simulating {name}: {} {} sequences × {} frames ({} val), {}",
-                sim.sequences, platform, sim.frames, sim.val_sequences, sim.sensor
+                "simulating {what}: {} {} sequences × {} frames ({} val), {}, seed {seed}{}",
+                sim.sequences,
+                platform,
+                sim.frames,
+                sim.val_sequences,
+                sim.sensor,
+                if stratify { ", stratified layouts" } else { "" }
             ));
             let cfg = pi3det_sim::SimConfig {
                 sensor: pi3det_sim::SensorPreset::parse(&sim.sensor)?.config(),
@@ -138,16 +149,23 @@ impl Ctx<'_> {
                 overwrite: true,
                 per_platform_folders: true,
                 layout: None,
-                stratify_layouts: false,
+                stratify_layouts: stratify,
             };
-            pi3det_sim::export(&cfg, &[plan], &opts, &mut |_, _| {}).context("simulation")?;
+            match split {
+                Some(split) => {
+                    pi3det_sim::export_split(&cfg, &plan, split, &opts, &mut |_, _| {}).context("simulation")?;
+                }
+                None => {
+                    pi3det_sim::export(&cfg, &[plan], &opts, &mut |_, _| {}).context("simulation")?;
+                }
+            }
             Ok(())
         })?;
         Ok((dir.join(platform.as_str()), spec))
     }
 
     fn split(&self, dataset: &str, train: bool, log: &mut Log) -> Result<Subset> {
-        let (root, spec) = self.dataset_root(dataset, log)?;
+        let (root, spec) = self.dataset_root(dataset, train, log)?;
         let (split, max) = if train {
             (&spec.train_split, self.suite.schedule.max_train_frames)
         } else {
@@ -174,16 +192,23 @@ impl Ctx<'_> {
     }
 
     /// Trains `cfg` on `dataset`'s training split (once per output folder); its final checkpoint.
+    /// `level_to_m`: every frame levelled from its own ground to this sensor height first (the
+    /// pose-free Virtual Platform Pose), for a model trained in a platform's own frames.
     fn trained(
         &self,
         what: &str,
         cfg: &DetectorConfig,
         datasets: &[&str],
         stage: Option<&str>,
+        level_to_m: Option<f64>,
         log: &mut Log,
     ) -> Result<PathBuf> {
         let specs: Vec<String> = datasets.iter().map(|d| format!("{d}: {:?}", self.suite.datasets[*d])).collect();
-        let key = format!("{}\n{stage:?}\n{}", specs.join("\n"), cfg.to_toml());
+        let key = format!("{}\n{stage:?}\nlevel {level_to_m:?}\n{}", specs.join("\n"), cfg.to_toml());
+        let frame_transform = match level_to_m {
+            Some(h) => Level::Height(h).transform(cfg)?.map(|v| v as Arc<dyn FrameTransform>),
+            None => None,
+        };
         let mut train_sets = Vec::new();
         for d in datasets {
             train_sets.push(self.split(d, true, log)?);
@@ -191,7 +216,16 @@ impl Ctx<'_> {
         let device = self.device;
         let dir = self.shared("shared", what, &key, |dir| {
             let train = concat(&train_sets);
-            log.line(format!("training {what} ({} frames, {} epochs)", train.len(), cfg.train.epochs));
+            log.line(format!(
+                "training {what} ({} frames, {} epochs, {} steps{})",
+                train.len(),
+                cfg.train.epochs,
+                train.len() * cfg.train.epochs,
+                match level_to_m {
+                    Some(h) => format!(", every frame levelled to a {h:.2} m sensor height"),
+                    None => String::new(),
+                }
+            ));
             let t = std::time::Instant::now();
             train::train(
                 train::TrainOptions {
@@ -202,7 +236,7 @@ impl Ctx<'_> {
                     device,
                     resume: None,
                     stage: stage.map(str::to_string),
-                    frame_transform: None,
+                    frame_transform: frame_transform.clone(),
                 },
                 &mut |e| {
                     if let train::Event::EpochEnd { epoch, mean_loss, seconds, .. } = e {
@@ -350,7 +384,18 @@ pub(super) struct CellRun<'a> {
 impl CellRun<'_> {
     /// `det` on the target's validation split (detections in the cell's folder).
     fn eval(&self, det: &Detector, log: &mut Log) -> Result<ApSummary> {
-        let prep = Arc::new(Preprocessor::new(det.cfg())?);
+        self.eval_levelled(det, None, log)
+    }
+
+    /// [`CellRun::eval`] with every frame levelled to `level_to_m` first (as it was trained).
+    fn eval_levelled(&self, det: &Detector, level_to_m: Option<f64>, log: &mut Log) -> Result<ApSummary> {
+        let mut prep = Preprocessor::new(det.cfg())?;
+        if let Some(h) = level_to_m {
+            if let Some(v) = Level::Height(h).transform(det.cfg())? {
+                prep = prep.with_frame_transform(v);
+            }
+        }
+        let prep = Arc::new(prep);
         let ap = adapt::evaluate(det, prep, &self.val, &self.dir.join("val_detections.jsonl"))?;
         log.line(format!("target val ({} frames): {}", self.val.len(), ap.one_line()));
         Ok(ap)
@@ -363,6 +408,7 @@ impl CellRun<'_> {
             &format!("{what}_{}_{}", self.task.source, self.cell.detector),
             cfg,
             &[&self.task.source],
+            None,
             None,
             log,
         )

@@ -29,7 +29,7 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
                 infos: target_infos,
                 checkpoints: &checkpoints,
                 views: &views,
-                level: pi3det_nn::preprocess::Level::Off,
+                level: Level::Off,
                 shift_z: Some(target_shift),
                 fusion,
                 min_members: None,

@@ -14,8 +14,14 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
     if let Some(e) = adapt_epochs {
         cfg.ka.epochs = e;
     }
-    let pa =
-        ctx.trained(&format!("pa_{}_{}", task.source, cell.detector), &cfg.detector, &[&task.source], Some("pa"), log)?;
+    let pa = ctx.trained(
+        &format!("pa_{}_{}", task.source, cell.detector),
+        &cfg.detector,
+        &[&task.source],
+        Some("pa"),
+        None,
+        log,
+    )?;
     let source = ctx.split(&task.source, true, log)?;
     let mut msgs = Vec::new();
     let report = adapt::run(

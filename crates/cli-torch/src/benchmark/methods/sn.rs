@@ -24,6 +24,7 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
         &cfg,
         &[&task.source],
         None,
+        None,
         log,
     )?;
     outcome.ap = c.eval(&load(&ck, Some(&c.on_target(&cfg)), device)?, log)?;
