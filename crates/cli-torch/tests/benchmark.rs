@@ -176,3 +176,29 @@ fn a_cell_locked_by_another_run_is_left_to_it() {
     assert!(results.is_empty(), "{results:?}");
     assert!(!out.join("cells/v2q__source_only__tiny").exists());
 }
+
+/// `--seeds`: one run per seed, the validation split identical across seeds (its own seed), and a
+/// table of per-seed values, mean ± spread and each row's interval against source-only.
+#[test]
+fn seeds_run_paired_with_one_validation_split_and_intervals() {
+    let _turn = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let suite = write_suite(dir.path(), &["source_only", "target_only"], 1);
+    let out = dir.path().join("out");
+    let results = benchmark::run(&BenchmarkArgs { seeds: vec![1, 2], ..args(&suite, &out) }).unwrap();
+    assert_eq!(results.len(), 4);
+    let val_infos = |seed: u64| {
+        let data = out.join(format!("seed_{seed}/data"));
+        let d = std::fs::read_dir(&data)
+            .unwrap()
+            .flatten()
+            .find(|e| e.file_name().to_string_lossy().starts_with("quad_val_") && e.path().is_dir())
+            .unwrap();
+        std::fs::read(d.path().join("quadruped/val/pi3det_infos_val.pkl")).unwrap()
+    };
+    assert_eq!(val_infos(1), val_infos(2), "the validation split does not move with the seed");
+    let md = std::fs::read_to_string(out.join("benchmark.md")).unwrap();
+    assert!(md.contains("seeds [1, 2]") && md.contains("95 % interval"), "{md}");
+    let row = md.lines().find(|l| l.starts_with("| Target Only |")).unwrap();
+    assert!(row.matches(" / ").count() == 1 && row.contains(" ± ") && row.contains('['), "{row}");
+}

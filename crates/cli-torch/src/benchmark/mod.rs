@@ -9,9 +9,13 @@
 //! `--merge DIR…` combines the cell folders of several machines; every run ends by writing the
 //! tables ([`table`]): `benchmark.md`, `benchmark.csv`, `benchmark.json`, `gap_closed.png`.
 //!
+//! `--seeds 0,1` runs the suite once per seed (`OUT/seed_<S>`) and writes one table of per-seed
+//! values, mean ± spread and each row's paired-bootstrap interval against source-only ([`stats`]).
+//!
 //! `pi3det bench suite --suite configs/benchmark/mini.toml --out runs/bench`
 
 pub mod methods;
+pub mod stats;
 pub mod suite;
 pub mod table;
 
@@ -48,6 +52,14 @@ pub struct BenchmarkArgs {
     /// Run cells again even when finished with the same config.
     #[arg(long)]
     pub force: bool,
+    /// Run the suite once per seed (in OUT/seed_<S>, paired: the same data and validation split
+    /// per seed where the suite fixes them) and write one table of mean, spread and intervals.
+    #[arg(long, value_delimiter = ',')]
+    pub seeds: Vec<u64>,
+    /// Paired bootstrap draws over validation sequences for each row's interval against
+    /// source-only (0: no intervals).
+    #[arg(long, default_value_t = 200)]
+    pub bootstrap: usize,
     #[command(flatten)]
     pub device: DeviceArgs,
 }
@@ -193,11 +205,13 @@ pub fn collect(s: &Suite, out: &Path) -> Vec<CellResult> {
         .collect()
 }
 
-/// Writes the tables of what `out` holds.
-pub fn write_tables(s: &Suite, out: &Path) -> Result<Vec<CellResult>> {
+/// Writes the tables of what `out` holds (with intervals from `resamples` bootstrap draws).
+pub fn write_tables(s: &Suite, out: &Path, resamples: usize) -> Result<Vec<CellResult>> {
     let results = collect(s, out);
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let md = table::markdown(s, &results);
+    let mut md = table::markdown(s, &results);
+    let run = stats::SeedRun { seed: s.seed, suite: s, out, results: &results };
+    md += &stats::comparison(&[run], resamples)?;
     pi3det_data::io::write_atomic(&out.join("benchmark.md"), md.as_bytes(), true)?;
     pi3det_data::io::write_atomic(&out.join("benchmark.csv"), table::csv(&results).as_bytes(), true)?;
     #[derive(Serialize)]
@@ -268,20 +282,61 @@ pub fn run(args: &BenchmarkArgs) -> Result<Vec<CellResult>> {
     }
     if !args.merge.is_empty() {
         let n = merge(&s, &args.merge, &args.out)?;
-        let results = write_tables(&s, &args.out)?;
+        let results = write_tables(&s, &args.out, args.bootstrap)?;
         eprintln!("merged {n} cells from {} folders → {}", args.merge.len(), args.out.join("benchmark.md").display());
         return Ok(results);
     }
     let cells = select(&s, &args.only, args.shard)?;
     let device = args.device.setup(0)?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let ctx = Ctx { suite: &s, out: &args.out, device };
+    if args.seeds.is_empty() {
+        let results = run_seed(&s, &args.out, &cells, args, device)?;
+        print!("{}", std::fs::read_to_string(args.out.join("benchmark.md")).unwrap_or_default());
+        return Ok(results);
+    }
+    let mut seeds = args.seeds.clone();
+    seeds.sort_unstable();
+    seeds.dedup();
+    let suites: Vec<Suite> = seeds.iter().map(|&seed| Suite { seed, ..s.clone() }).collect();
+    let outs: Vec<PathBuf> = seeds.iter().map(|seed| args.out.join(format!("seed_{seed}"))).collect();
+    let mut all = Vec::new();
+    for (suite, out) in suites.iter().zip(&outs) {
+        eprintln!("seed {}: {}", suite.seed, out.display());
+        all.push(run_seed(suite, out, &cells, args, device)?);
+    }
+    let runs: Vec<stats::SeedRun<'_>> = suites
+        .iter()
+        .zip(&outs)
+        .zip(&all)
+        .map(|((suite, out), results)| stats::SeedRun { seed: suite.seed, suite, out, results })
+        .collect();
+    let md = format!(
+        "# Benchmark `{}`, seeds {seeds:?}\n\nPer-seed tables: {}.\n{}{}",
+        s.name,
+        outs.iter().map(|o| format!("`{}`", o.join("benchmark.md").display())).collect::<Vec<_>>().join(", "),
+        stats::comparison(&runs, args.bootstrap)?,
+        table::notes(&s)
+    );
+    pi3det_data::io::write_atomic(&args.out.join("benchmark.md"), md.as_bytes(), true)?;
+    print!("{md}");
+    Ok(all.into_iter().flatten().collect())
+}
+
+/// Runs `cells` of `s` in `out` (skipping finished ones) and writes its tables.
+fn run_seed(
+    s: &Suite,
+    out: &Path,
+    cells: &[Cell],
+    args: &BenchmarkArgs,
+    device: tch::Device,
+) -> Result<Vec<CellResult>> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let ctx = Ctx { suite: s, out, device };
     let t0 = Instant::now();
     let (mut ran, mut skipped, mut failed) = (0, 0, 0);
-    for c in &cells {
+    for c in cells {
         let id = s.cell_id(c);
-        let key = cell_key(&s, c);
-        let dir = args.out.join("cells").join(cell_dir_name(&id));
+        let key = cell_key(s, c);
+        let dir = out.join("cells").join(cell_dir_name(&id));
         if !args.force && finished(&dir, &key) {
             eprintln!("[{id}] finished earlier with the same config: skipped");
             skipped += 1;
@@ -296,12 +351,11 @@ pub fn run(args: &BenchmarkArgs) -> Result<Vec<CellResult>> {
             failed += 1;
         }
     }
-    let results = write_tables(&s, &args.out)?;
+    let results = write_tables(s, out, args.bootstrap)?;
     eprintln!(
         "{ran} cells run ({failed} failed), {skipped} skipped, in {:.0} s → {}",
         t0.elapsed().as_secs_f64(),
-        args.out.join("benchmark.md").display()
+        out.join("benchmark.md").display()
     );
-    print!("{}", table::markdown(&s, &results));
     Ok(results)
 }

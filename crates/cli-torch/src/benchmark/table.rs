@@ -161,7 +161,7 @@ pub fn markdown(suite: &Suite, results: &[CellResult]) -> String {
 }
 
 /// What every row shares and where rows differ by more than their method.
-fn notes(suite: &Suite) -> String {
+pub(crate) fn notes(suite: &Suite) -> String {
     let mut s = String::from("\n## Notes\n\n");
     for (name, d) in &suite.detectors {
         if d.mixed_post {

@@ -80,6 +80,8 @@ pub fn args(suite: &Path, out: &Path) -> BenchmarkArgs {
         merge: Vec::new(),
         list: false,
         force: false,
+        seeds: Vec::new(),
+        bootstrap: 20,
         device: DeviceArgs { device: DeviceChoice::Cpu, torch_threads: Some(1), precision: None },
     }
 }

@@ -164,7 +164,7 @@ impl Ctx<'_> {
         Ok((dir.join(platform.as_str()), spec))
     }
 
-    fn split(&self, dataset: &str, train: bool, log: &mut Log) -> Result<Subset> {
+    pub(crate) fn split(&self, dataset: &str, train: bool, log: &mut Log) -> Result<Subset> {
         let (root, spec) = self.dataset_root(dataset, train, log)?;
         let (split, max) = if train {
             (&spec.train_split, self.suite.schedule.max_train_frames)
