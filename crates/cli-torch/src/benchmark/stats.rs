@@ -264,18 +264,29 @@ pub fn mean_spread(values: &[f64]) -> (f64, f64) {
 mod tests {
     use super::*;
 
-    /// A synthetic table: per sequence, row B scores its row A + 5 with noise of spread 2.
+    /// Noise of up to ±2 whose mean over the 24 sequences is exactly 0 (pairs ±e).
+    fn zero_mean_noise(rng: &mut rand::rngs::StdRng) -> Vec<f64> {
+        (0..12)
+            .flat_map(|_| {
+                let e = rng.random_range(0.0..2.0);
+                [e, -e]
+            })
+            .collect()
+    }
+
+    /// A synthetic table: per sequence, row B scores its row A + 5 with noise; the difference
+    /// over all sequences is exactly 5.
     #[test]
     fn a_known_difference_lies_in_its_interval_and_is_resolved() {
         let mut rng = rand::rngs::StdRng::seed_from_u64(3);
         let a: Vec<f64> = (0..24).map(|_| rng.random_range(30.0..70.0)).collect();
-        let b: Vec<f64> = a.iter().map(|x| x + 5.0 + rng.random_range(-2.0..2.0)).collect();
+        let b: Vec<f64> = a.iter().zip(zero_mean_noise(&mut rng)).map(|(x, e)| x + 5.0 + e).collect();
         let mean = |v: &[f64], d: &[usize]| d.iter().map(|&i| v[i]).sum::<f64>() / d.len() as f64;
         let i = paired_bootstrap(&[24], 500, 0, &mut |d| Ok(mean(&b, &d[0]) - mean(&a, &d[0]))).unwrap();
-        assert!((i.diff - 5.0).abs() < 1.0 && i.lo < 5.0 && 5.0 < i.hi && i.resolved(), "{i:?}");
+        assert!((i.diff - 5.0).abs() < 1e-9 && i.lo < 5.0 && 5.0 < i.hi && i.resolved(), "{i:?}");
         assert!(i.hi - i.lo < 2.0, "paired: the sequences' own spread cancels: {i:?}");
         // No difference: the interval holds 0 and the ordering is not resolved.
-        let c: Vec<f64> = a.iter().map(|x| x + rng.random_range(-2.0..2.0)).collect();
+        let c: Vec<f64> = a.iter().zip(zero_mean_noise(&mut rng)).map(|(x, e)| x + e).collect();
         let j = paired_bootstrap(&[24], 500, 0, &mut |d| Ok(mean(&c, &d[0]) - mean(&a, &d[0]))).unwrap();
         assert!(j.lo < 0.0 && 0.0 < j.hi && !j.resolved(), "{j:?}");
         // Two seeds: the seed-mean difference.
@@ -283,7 +294,7 @@ mod tests {
             Ok((mean(&b, &d[0]) - mean(&a, &d[0]) + mean(&c, &d[1]) - mean(&a, &d[1])) / 2.0)
         })
         .unwrap();
-        assert!((k.diff - 2.5).abs() < 1.0 && k.lo < 2.5 && 2.5 < k.hi, "{k:?}");
+        assert!((k.diff - 2.5).abs() < 1e-9 && k.lo < 2.5 && 2.5 < k.hi, "{k:?}");
     }
 
     #[test]
