@@ -56,6 +56,10 @@ fn every_method_runs_resumes_and_shards_merge_to_one_run() {
     assert_eq!(modified(&out, "v2q__source_only__tiny"), before[0], "unchanged cells are skipped");
     assert_ne!(modified(&out, "v2q__st3d__tiny"), before[1], "the changed cell ran again");
     assert_eq!(again.len(), all.len());
+    // ST3D over two epochs, refreshed every epoch: label rounds at epochs 0 and 1 (the memory merged).
+    let st3d = again.iter().find(|r| r.id == "v2q/st3d/tiny").unwrap();
+    let epochs: Vec<u64> = st3d.pseudo_labels.iter().map(|r| r["epoch"].as_u64().unwrap()).collect();
+    assert_eq!(epochs, vec![0, 1]);
 
     // Shards: two machines, then a merge, give the unsharded table.
     let few = ["source_only", "st3d", "ms3d_pp"];

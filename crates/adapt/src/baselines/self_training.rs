@@ -61,7 +61,35 @@ impl Default for SelfTrainingConfig {
     }
 }
 
+/// The epochs of ST3D's published schedule, for which its refresh period (2) and curriculum
+/// milestones (5, 10, 20, 25) are given.
+pub const ST3D_EPOCHS: usize = 30;
+
 impl SelfTrainingConfig {
+    /// The same recipe over `epochs` epochs: the refresh period and the curriculum's milestones
+    /// scaled from [`ST3D_EPOCHS`] (at least every epoch and from epoch 1), so a short run still
+    /// relabels, merges its memory and widens its augmentations in the published proportions
+    /// rather than stopping after its first labels. Fixed labels (`refresh_every = 0`) stay fixed.
+    pub fn scaled_to(&self, epochs: usize) -> Self {
+        let scale = |e: usize| ((e * epochs) as f64 / ST3D_EPOCHS as f64).round().max(1.0) as usize;
+        let mut c = self.clone();
+        c.epochs = epochs;
+        if c.labels.refresh_every > 0 {
+            c.labels.refresh_every = scale(c.labels.refresh_every);
+        }
+        if let Some(cur) = c.curriculum.as_mut() {
+            cur.milestones = cur.milestones.iter().map(|&m| scale(m)).collect();
+        }
+        c
+    }
+
+    /// The (0-based) epochs that start with new pseudo-labels: the first, then every
+    /// `refresh_every`.
+    pub fn refresh_epochs(&self) -> Vec<usize> {
+        let r = self.labels.refresh_every;
+        (0..self.epochs).filter(|&e| e == 0 || (r > 0 && e % r == 0)).collect()
+    }
+
     /// The KA loop's settings this self-training runs with (the trained weights as they are).
     fn ka(&self) -> KaConfig {
         KaConfig { epochs: self.epochs, lr: self.lr, ..KaConfig::default() }
@@ -180,9 +208,9 @@ impl SelfTraining<'_> {
         let mut report = SelfTrainingReport::default();
         let mut mem: Vec<Vec<MemoryBox>> = Vec::new();
         let mut labels: Vec<FrameDetections> = Vec::new();
-        let refresh = cfg.labels.refresh_every;
+        let refreshes = cfg.refresh_epochs();
         for epoch in 0..cfg.epochs {
-            if epoch == 0 || (refresh > 0 && epoch % refresh == 0) {
+            if refreshes.contains(&epoch) {
                 if let Some(n) = norms.as_mut() {
                     n.enter(Domain::Target);
                 }
@@ -244,5 +272,29 @@ impl SelfTraining<'_> {
         };
         checkpoint::save(&out_dir.join("final.safetensors"), det, None, &state)?;
         Ok(report)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn st3d_scaled_to_a_short_run_still_refreshes_and_widens() {
+        let st3d = SelfTrainingConfig::default();
+        let full = st3d.scaled_to(ST3D_EPOCHS);
+        assert_eq!(full.refresh_epochs(), (0..30).step_by(2).collect::<Vec<_>>());
+        assert_eq!(full.curriculum.as_ref().unwrap().milestones, vec![5, 10, 20, 25]);
+        let six = st3d.scaled_to(6);
+        assert_eq!(six.refresh_epochs(), vec![0, 1, 2, 3, 4, 5]);
+        assert_eq!(six.curriculum.as_ref().unwrap().milestones, vec![1, 2, 4, 5]);
+        let two = st3d.scaled_to(2);
+        assert_eq!(two.refresh_epochs(), vec![0, 1], "two label rounds, the memory merges once");
+        // MS3D++'s fixed labels stay fixed.
+        let fixed = SelfTrainingConfig {
+            labels: PseudoLabelConfig { refresh_every: 0, ..st3d.labels.clone() },
+            ..st3d.clone()
+        };
+        assert_eq!(fixed.scaled_to(6).refresh_epochs(), vec![0]);
     }
 }

@@ -330,9 +330,10 @@ fn self_training_config(m: &MethodSpec, epochs: Option<usize>) -> SelfTrainingCo
             _ => st3d,
         }
     });
+    // The published recipe at the suite's length: refresh period and curriculum scaled with it.
     if m.self_training.is_none() {
         if let Some(e) = epochs {
-            c.epochs = e;
+            c = c.scaled_to(e);
         }
     }
     c
