@@ -35,6 +35,9 @@ fn every_method_runs_resumes_and_shards_merge_to_one_run() {
     assert!(
         !st3d.pseudo_labels.is_empty() && st3d.pseudo_labels[0]["quality"].as_array().is_some_and(|q| !q.is_empty())
     );
+    // MS3D++ fused the boxes of two source models (the detector at two seeds, by default).
+    let log = std::fs::read_to_string(out.join("cells/v2q__ms3dpp__tiny/log.txt")).unwrap();
+    assert_eq!(log.matches("MS3D++ member:").count(), 2, "{log}");
     // Target-only: the source model's step budget, in levelled target frames.
     let log = std::fs::read_to_string(out.join("cells/v2q__target_only__tiny/log.txt")).unwrap();
     assert!(log.contains("for the source model's 3 steps") && log.contains("levelled to a 1.90 m"), "{log}");
@@ -141,6 +144,14 @@ fn bad_suites_are_refused_naming_the_problem() {
     .unwrap();
     assert!(flagged.detectors["tiny"].mixed_post);
     assert!(benchmark::table::markdown(&flagged, &[]).contains("post-process otherwise than Pi3DET-Net"));
+    // MS3D++ fuses several detectors: one member alone is refused unless asked for.
+    let one = format!("{good}[[methods]]\nkind = \"ms3d_pp\"\nensemble = [{{}}]\n");
+    check(one.clone(), "at least two different members");
+    assert!(Suite::from_toml_str(&format!("{one}allow_single_member = true\n"), &path).is_ok());
+    check(
+        format!("{good}[[methods]]\nkind = \"ms3d_pp\"\nensemble = [{{}}, {{ config = \"nope.toml\" }}]\n"),
+        "nope.toml",
+    );
     // Without `config` the baselines run the Pi3DET-Net detector less its components.
     let derived = Suite::from_toml_str(&good.replace("config = \"det.toml\"\n", ""), &path).unwrap();
     let d = &derived.detectors["tiny"];

@@ -159,6 +159,36 @@ pub struct MethodSpec {
     /// MS3D++: label → self-train rounds.
     #[serde(default = "one")]
     pub rounds: usize,
+    /// MS3D++: the source-trained detectors whose boxes are fused (each seen in 4 views). MS3D++
+    /// fuses several different detectors; absent: the row's detector at the suite's seed and
+    /// the next, two members of one architecture.
+    #[serde(default)]
+    pub ensemble: Vec<MemberSpec>,
+    /// MS3D++: accept an ensemble of one detector (its views only), which is not MS3D++.
+    #[serde(default)]
+    pub allow_single_member: bool,
+}
+
+/// One member of an MS3D++ ensemble: a detector config trained on the source.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MemberSpec {
+    /// Its config (relative to the suite file); absent: the row's own detector.
+    pub config: Option<PathBuf>,
+    /// Added to the suite's seed for this member's training.
+    #[serde(default)]
+    pub seed_offset: u64,
+}
+
+impl MethodSpec {
+    /// MS3D++'s members: the given ones, else the row's detector at two seeds.
+    pub fn members(&self) -> Vec<MemberSpec> {
+        if self.ensemble.is_empty() {
+            vec![MemberSpec { config: None, seed_offset: 0 }, MemberSpec { config: None, seed_offset: 1 }]
+        } else {
+            self.ensemble.clone()
+        }
+    }
 }
 
 fn one() -> usize {
@@ -337,6 +367,32 @@ impl Suite {
                 st.validate().map_err(|e| anyhow::anyhow!(ctx(format!("method {}: {e}", m.label()))))?;
             }
         }
+        let mut methods = f.methods.clone();
+        for m in &mut methods {
+            if m.kind != MethodKind::Ms3dPp {
+                if !m.ensemble.is_empty() {
+                    bail!(ctx(format!("method {}: `ensemble` is MS3D++'s", m.label())));
+                }
+                continue;
+            }
+            let distinct: BTreeSet<String> = m.members().iter().map(|x| format!("{x:?}")).collect();
+            if distinct.len() < 2 && !m.allow_single_member {
+                bail!(ctx(format!(
+                    "method {}: an MS3D++ ensemble needs at least two different members (MS3D++ fuses several \
+                     detectors); list them in `ensemble` or set `allow_single_member = true`",
+                    m.label()
+                )));
+            }
+            let label = m.label();
+            for x in &mut m.ensemble {
+                if let Some(p) = &x.config {
+                    let p = rel(p);
+                    DetectorConfig::from_file(&p)
+                        .with_context(|| ctx(format!("method {label}: ensemble member {}", p.display())))?;
+                    x.config = Some(p);
+                }
+            }
+        }
         let mut detectors = BTreeMap::new();
         for (name, d) in &f.detectors {
             if slug(name) != *name {
@@ -369,6 +425,24 @@ impl Suite {
             }
             detectors.insert(name.clone(), DetectorEntry { config, pi3det_net, mixed_post: mixed });
         }
+        for m in &methods {
+            for x in m.ensemble.iter().filter_map(|x| x.config.as_ref()) {
+                let c = DetectorConfig::from_file(x)?;
+                for (name, d) in &detectors {
+                    if c.classes != d.config.classes || c.shift_z != d.config.shift_z {
+                        bail!(ctx(format!(
+                            "method {}: ensemble member {} detects {:?} at shift_z {} but detector {name} {:?} at {}",
+                            m.label(),
+                            x.display(),
+                            c.classes,
+                            c.shift_z,
+                            d.config.classes,
+                            d.config.shift_z
+                        )));
+                    }
+                }
+            }
+        }
         Ok(Self {
             name: f.name,
             seed: f.seed,
@@ -376,7 +450,7 @@ impl Suite {
             detectors,
             datasets,
             tasks: f.tasks,
-            methods: f.methods,
+            methods,
             schedule: f.schedule,
         })
     }

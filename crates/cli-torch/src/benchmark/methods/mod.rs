@@ -321,10 +321,17 @@ fn self_training_config(m: &MethodSpec, epochs: Option<usize>) -> SelfTrainingCo
                 ds_norm: true,
                 ..st3d
             },
-            MethodKind::Redb | MethodKind::Ms3dPp => SelfTrainingConfig {
+            MethodKind::Redb => SelfTrainingConfig {
                 memory: None,
                 curriculum: None,
                 labels: pseudo_labels::PseudoLabelConfig { positive_score: 0.5, ignore_score: 0.2, refresh_every: 0 },
+                ..st3d
+            },
+            // MS3D's published thresholds on its fused, tracked labels (fixed within a round).
+            MethodKind::Ms3dPp => SelfTrainingConfig {
+                memory: None,
+                curriculum: None,
+                labels: pseudo_labels::PseudoLabelConfig { positive_score: 0.6, ignore_score: 0.2, refresh_every: 0 },
                 ..st3d
             },
             _ => st3d,

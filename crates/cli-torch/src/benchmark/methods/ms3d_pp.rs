@@ -1,5 +1,7 @@
-//! MS3D++ (Tsai et al. 2023): an ensemble's boxes fused (KDE box fusion) and tracked into fixed
-//! pseudo-labels, then self-training on them, round after round.
+//! MS3D++ (Tsai et al. 2023): the boxes of an ensemble of source-trained detectors (each in four
+//! views) fused (KDE box fusion, a cluster kept with enough members) and tracked into fixed
+//! pseudo-labels, then self-training on them, round after round, each round's model joining the
+//! ensemble.
 
 use super::*;
 
@@ -13,7 +15,23 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
     let ck = c.source_model(with_ros, log)?;
     let mut det = load(&ck, Some(&c.on_target(with_ros)), device)?;
     let st = self_training_config(method, adapt_epochs);
-    let mut checkpoints = vec![ck.clone()];
+    let mut checkpoints = Vec::new();
+    for m in method.members() {
+        let p = match (&m.config, m.seed_offset) {
+            (None, 0) => ck.clone(),
+            (config, offset) => {
+                let mut cfg = match config {
+                    Some(p) => c.ctx.scheduled(&DetectorConfig::from_file(p)?),
+                    None => with_ros.clone(),
+                };
+                cfg.train.seed = c.ctx.suite.seed + offset;
+                let name = format!("ms3d_member_{}_{}_{}_s{offset}", c.task.source, c.cell.detector, cfg.name);
+                c.ctx.trained(&name, &cfg, &[&c.task.source], None, None, log)?
+            }
+        };
+        log.line(format!("MS3D++ member: {}", p.display()));
+        checkpoints.push(p);
+    }
     for round in 0..method.rounds.max(1) {
         let views = [
             View { flip_y: false, yaw_rad: 0.0 },
