@@ -163,7 +163,7 @@ fn bad_suites_are_refused_naming_the_problem() {
 fn shipped_suites_parse() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/benchmark");
     let mini = Suite::from_file(&dir.join("mini.toml")).unwrap();
-    assert_eq!(mini.cells().len(), 2 * 5);
+    assert_eq!(mini.cells().len(), 3 * 5);
     // One network and post-processing for every row; a fixed, stratified validation of ≥ 12
     // sequences per target; target-only as many steps as the source.
     assert!(mini.detectors.values().all(|d| !d.mixed_post));
@@ -172,6 +172,12 @@ fn shipped_suites_parse() {
         assert!(sim.val_sequences >= 12 && sim.val_seed.is_some(), "{}: {sim:?}", t.target);
     }
     assert!(mini.schedule.equal_steps);
+    // Table 5: six component sets between source-only and target-only.
+    let ablation = Suite::from_file(&dir.join("ablation.toml")).unwrap();
+    let labels: Vec<String> = ablation.methods.iter().map(|m| m.label()).collect();
+    assert_eq!(labels.len(), 8);
+    assert_eq!(labels[1], "Pi3DET-Net (KA alone)");
+    assert_eq!(labels[6], "Pi3DET-Net (RPJ + VPP + PFA + GTD)");
     let paper = Suite::from_file(&dir.join("paper.toml")).unwrap();
     assert_eq!((paper.tasks.len(), paper.methods.len()), (8, 11));
     assert_eq!(paper.cells().len(), 88);
@@ -216,4 +222,25 @@ fn seeds_run_paired_with_one_validation_split_and_intervals() {
     assert!(md.contains("seeds [1, 2]") && md.contains("95 % interval"), "{md}");
     let row = md.lines().find(|l| l.starts_with("| Target Only |")).unwrap();
     assert!(row.matches(" / ").count() == 1 && row.contains(" ± ") && row.contains('['), "{row}");
+}
+
+/// An ablation row keeps only its components: its Pre-Adaptation and KA run without the others.
+#[test]
+fn an_ablation_row_runs_pi3det_net_with_its_components_only() {
+    let _turn = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let suite = write_suite(dir.path(), &["source_only"], 1);
+    let text =
+        std::fs::read_to_string(&suite).unwrap() + "[[methods]]\nkind = \"pi3det_net\"\ncomponents = [\"vpp\"]\n";
+    std::fs::write(&suite, &text).unwrap();
+    let out = dir.path().join("out");
+    let results = benchmark::run(&args(&suite, &out)).unwrap();
+    let row = results.iter().find(|r| r.method == "Pi3DET-Net (VPP)").unwrap();
+    assert_eq!(row.status, Status::Done, "{:?}", row.error);
+    let log = std::fs::read_to_string(out.join("cells/v2q__pi3det_net_vpp__tiny/log.txt")).unwrap();
+    assert!(log.contains("Pi3DET-Net components: [Vpp]"), "{log}");
+    // Components belong to Pi3DET-Net.
+    let bad = text.replace("kind = \"source_only\"", "kind = \"source_only\"\ncomponents = []");
+    let e = format!("{:#}", Suite::from_toml_str(&bad, &suite).unwrap_err());
+    assert!(e.contains("are Pi3DET-Net's"), "{e}");
 }

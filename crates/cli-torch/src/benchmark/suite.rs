@@ -76,6 +76,9 @@ pub struct SimSpec {
     pub frames: u32,
     /// Simulation seed (default: the suite's).
     pub seed: Option<u64>,
+    /// Simulator settings (a TOML as `pi3det simulate --print-config` writes, only the keys that
+    /// differ needed; relative to the suite file), e.g. another drone's flight heights.
+    pub config: Option<PathBuf>,
     /// Simulate the validation split on its own from this seed, with stratified layouts (every
     /// scene layout in turn), so it is the same for every suite seed; absent: the last
     /// `val_sequences` of the training simulation.
@@ -156,6 +159,9 @@ pub struct MethodSpec {
     /// Self-training settings (ST3D, ST3D++, REDB, MS3D++); absent: the method's defaults.
     pub self_training: Option<SelfTrainingConfig>,
     pub redb: Option<RedbConfig>,
+    /// Pi3DET-Net: the components this row keeps (`rpj`, `vpp`, `gtd`, `pfa`; absent: all of its
+    /// config's), for the ablation (paper Table 5).
+    pub components: Option<Vec<pi3det_adapt::pipeline::Component>>,
     /// MS3D++: label → self-train rounds.
     #[serde(default = "one")]
     pub rounds: usize,
@@ -197,10 +203,15 @@ fn one() -> usize {
 
 impl MethodSpec {
     pub fn label(&self) -> String {
-        match &self.name {
-            Some(n) => n.clone(),
-            None if self.ros => format!("{} (w/ ROS)", self.kind.label()),
-            None => self.kind.label().to_string(),
+        match (&self.name, &self.components) {
+            (Some(n), _) => n.clone(),
+            (None, Some(c)) if c.is_empty() => format!("{} (KA alone)", self.kind.label()),
+            (None, Some(c)) => {
+                let names: Vec<String> = c.iter().map(|x| format!("{x:?}").to_uppercase()).collect();
+                format!("{} ({})", self.kind.label(), names.join(" + "))
+            }
+            (None, None) if self.ros => format!("{} (w/ ROS)", self.kind.label()),
+            (None, None) => self.kind.label().to_string(),
         }
     }
 
@@ -318,7 +329,7 @@ impl Suite {
         let mut datasets = BTreeMap::new();
         for (name, d) in &f.datasets {
             let mut d = d.clone();
-            match (&d.sim, &d.path) {
+            match (d.sim.as_mut(), &d.path) {
                 (Some(s), None) => {
                     if pi3det_data::Platform::parse(&s.platform) == pi3det_data::Platform::Unknown {
                         bail!(ctx(format!(
@@ -328,6 +339,12 @@ impl Suite {
                     }
                     pi3det_sim::SensorPreset::parse(&s.sensor)
                         .map_err(|e| anyhow::anyhow!(ctx(format!("dataset {name}: {e}"))))?;
+                    if let Some(p) = &s.config {
+                        let p = rel(p);
+                        pi3det_sim::SimConfig::load(&p)
+                            .map_err(|e| anyhow::anyhow!(ctx(format!("dataset {name}: {e}"))))?;
+                        s.config = Some(p);
+                    }
                     if s.sequences <= s.val_sequences || s.val_sequences == 0 || s.frames == 0 {
                         bail!(ctx(format!("dataset {name}: needs 0 < val_sequences < sequences and frames > 0")));
                     }
@@ -365,6 +382,11 @@ impl Suite {
             }
             if let Some(st) = &m.self_training {
                 st.validate().map_err(|e| anyhow::anyhow!(ctx(format!("method {}: {e}", m.label()))))?;
+            }
+        }
+        for m in &f.methods {
+            if m.components.is_some() && m.kind != MethodKind::Pi3detNet {
+                bail!(ctx(format!("method {}: `components` are Pi3DET-Net's", m.label())));
             }
         }
         let mut methods = f.methods.clone();
@@ -558,6 +580,7 @@ mod tests {
             frames: 30,
             seed: None,
             val_seed: Some(1000),
+            config: None,
         };
         assert_eq!(sim.split_key(false, 0), sim.split_key(false, 1));
         assert_ne!(sim.split_key(true, 0), sim.split_key(true, 1));

@@ -122,7 +122,10 @@ impl Ctx<'_> {
             (true, Some(_)) => (format!("{name}_train"), Some("train"), sim.seed.unwrap_or(self.suite.seed), false),
             (_, None) => (name.to_string(), None, sim.seed.unwrap_or(self.suite.seed), false),
         };
-        let key = sim.split_key(train, self.suite.seed);
+        let mut key = sim.split_key(train, self.suite.seed);
+        if let Some(p) = &sim.config {
+            key += &format!("\n{}", std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?);
+        }
         let dir = self.shared("data", &what, &key, |dir| {
             log.line(format!(
                 "simulating {what}: {} {} sequences × {} frames ({} val), {}, seed {seed}{}",
@@ -133,10 +136,11 @@ impl Ctx<'_> {
                 sim.sensor,
                 if stratify { ", stratified layouts" } else { "" }
             ));
-            let cfg = pi3det_sim::SimConfig {
-                sensor: pi3det_sim::SensorPreset::parse(&sim.sensor)?.config(),
-                ..Default::default()
+            let base = match &sim.config {
+                Some(p) => pi3det_sim::SimConfig::load(p)?,
+                None => pi3det_sim::SimConfig::default(),
             };
+            let cfg = pi3det_sim::SimConfig { sensor: pi3det_sim::SensorPreset::parse(&sim.sensor)?.config(), ..base };
             let plan = pi3det_sim::PlatformPlan {
                 platform,
                 sequences: sim.sequences,

@@ -2,6 +2,7 @@
 //! (pseudo-labels through VPP, Knowledge-Adaptation, the guard).
 
 use super::*;
+use pi3det_adapt::pipeline::Component;
 
 /// Pi3DET-Net: PA (shared between cells), then the adaptation stages on the target.
 pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
@@ -10,6 +11,12 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
     let adapt_epochs = c.adapt_epochs;
     let mut outcome = Outcome::default();
     let mut cfg = entry.pi3det_net.clone().expect("a checked suite has the pi3det_net config");
+    // An ablation row: the components it does not keep switched off (its PA trains without them).
+    if let Some(keep) = &c.method.components {
+        let off: Vec<Component> = cfg.components().into_iter().filter(|x| !keep.contains(x)).collect();
+        cfg = cfg.without(&off);
+        log.line(format!("Pi3DET-Net components: {:?}", cfg.components()));
+    }
     cfg.detector = ctx.scheduled(&cfg.detector);
     if let Some(e) = adapt_epochs {
         cfg.ka.epochs = e;
