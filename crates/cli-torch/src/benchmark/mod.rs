@@ -80,6 +80,8 @@ struct CellKey<'a> {
     method: &'a suite::MethodSpec,
     detector: String,
     pi3det_net: Option<String>,
+    /// MS3D++'s ensemble members' configs (a changed member file reruns the cell).
+    members: Vec<String>,
     schedule: &'a suite::Schedule,
 }
 
@@ -97,6 +99,12 @@ fn cell_key(s: &Suite, c: &Cell) -> String {
         pi3det_net: (s.methods[c.method].kind == suite::MethodKind::Pi3detNet)
             .then(|| d.pi3det_net.as_ref().map(|a| a.to_toml()))
             .flatten(),
+        members: s.methods[c.method]
+            .ensemble
+            .iter()
+            .filter_map(|m| m.config.as_ref())
+            .map(|p| std::fs::read_to_string(p).unwrap_or_default())
+            .collect(),
         schedule: &s.schedule,
     };
     serde_json::to_string_pretty(&key).unwrap_or_default()
