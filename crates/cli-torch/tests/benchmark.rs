@@ -12,6 +12,16 @@ use pi3det_cli_torch::benchmark::suite::Suite;
 use pi3det_cli_torch::benchmark::table::Status;
 use pi3det_cli_torch::benchmark::{self, BenchmarkArgs};
 
+/// The folder of the tiny suite's quadruped validation split (simulated with its own seed).
+fn quad_val_dir(out: &Path) -> std::path::PathBuf {
+    std::fs::read_dir(out.join("data"))
+        .unwrap()
+        .flatten()
+        .find(|e| e.file_name().to_string_lossy().starts_with("quad_val_") && e.path().is_dir())
+        .unwrap()
+        .path()
+}
+
 fn modified(out: &Path, cell: &str) -> std::time::SystemTime {
     std::fs::metadata(out.join("cells").join(cell).join("result.json")).unwrap().modified().unwrap()
 }
@@ -93,12 +103,8 @@ fn a_failing_cell_is_reported_and_the_others_run() {
     let mut a = args(&suite, &out);
     a.only = vec!["v2q/source_only/*".into()];
     benchmark::run(&a).unwrap();
-    let data = std::fs::read_dir(out.join("data"))
-        .unwrap()
-        .flatten()
-        .find(|e| e.file_name().to_string_lossy().starts_with("quad_val_") && e.path().is_dir())
-        .unwrap();
-    std::fs::remove_file(data.path().join("quadruped/val/pi3det_infos_val.pkl")).unwrap();
+    let data = quad_val_dir(&out);
+    std::fs::remove_file(data.join("quadruped/val/pi3det_infos_val.pkl")).unwrap();
     let results = benchmark::run(&BenchmarkArgs { force: true, ..args(&suite, &out) }).unwrap();
     assert!(results.iter().all(|r| r.status == Status::Failed), "{results:?}");
     let md = std::fs::read_to_string(out.join("benchmark.md")).unwrap();
@@ -209,13 +215,8 @@ fn seeds_run_paired_with_one_validation_split_and_intervals() {
     let results = benchmark::run(&BenchmarkArgs { seeds: vec![1, 2], ..args(&suite, &out) }).unwrap();
     assert_eq!(results.len(), 4);
     let val_infos = |seed: u64| {
-        let data = out.join(format!("seed_{seed}/data"));
-        let d = std::fs::read_dir(&data)
-            .unwrap()
-            .flatten()
-            .find(|e| e.file_name().to_string_lossy().starts_with("quad_val_") && e.path().is_dir())
-            .unwrap();
-        std::fs::read(d.path().join("quadruped/val/pi3det_infos_val.pkl")).unwrap()
+        let d = quad_val_dir(&out.join(format!("seed_{seed}")));
+        std::fs::read(d.join("quadruped/val/pi3det_infos_val.pkl")).unwrap()
     };
     assert_eq!(val_infos(1), val_infos(2), "the validation split does not move with the seed");
     let md = std::fs::read_to_string(out.join("benchmark.md")).unwrap();
