@@ -48,32 +48,39 @@ fn percentiles_95(samples: &mut [f64]) -> (f64, f64) {
     (q(0.025), q(0.975))
 }
 
-/// Paired bootstrap over groups: `groups[u]` is the number of groups (sequences) of unit `u`
-/// (a seed); `diff` gets, per unit, the drawn group indices and returns the difference on them.
-/// The identity draw gives [`Interval::diff`].
+/// The draws of a paired bootstrap over groups: `groups[u]` is the number of groups (sequences)
+/// of unit `u` (a seed); each draw holds, per unit, as many group indices drawn with replacement.
+/// The first draw is the identity (the full splits).
+pub fn draws(groups: &[usize], resamples: usize, seed: u64) -> Vec<Vec<Vec<usize>>> {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let mut out = vec![groups.iter().map(|&n| (0..n).collect()).collect()];
+    for _ in 0..resamples {
+        out.push(groups.iter().map(|&n| (0..n).map(|_| rng.random_range(0..n)).collect()).collect());
+    }
+    out
+}
+
+/// The interval of `diffs`, one per draw of [`draws`] (the first on the full splits); draws
+/// whose difference is not finite (no ground truth drawn) are left out.
+pub fn interval(diffs: &[f64]) -> Interval {
+    let full = diffs.first().copied().unwrap_or(f64::NAN);
+    let mut samples: Vec<f64> = diffs.iter().skip(1).copied().filter(|d| d.is_finite()).collect();
+    if samples.is_empty() {
+        return Interval { diff: full, lo: f64::NAN, hi: f64::NAN, resamples: 0 };
+    }
+    let (lo, hi) = percentiles_95(&mut samples);
+    Interval { diff: full, lo, hi, resamples: samples.len() }
+}
+
+/// [`draws`] and [`interval`] with `diff` computing the difference on each draw.
 pub fn paired_bootstrap(
     groups: &[usize],
     resamples: usize,
     seed: u64,
     diff: &mut dyn FnMut(&[Vec<usize>]) -> Result<f64>,
 ) -> Result<Interval> {
-    let all: Vec<Vec<usize>> = groups.iter().map(|&n| (0..n).collect()).collect();
-    let full = diff(&all)?;
-    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-    let mut samples = Vec::with_capacity(resamples);
-    for _ in 0..resamples {
-        let draw: Vec<Vec<usize>> =
-            groups.iter().map(|&n| (0..n).map(|_| rng.random_range(0..n.max(1))).collect()).collect();
-        let d = diff(&draw)?;
-        if d.is_finite() {
-            samples.push(d);
-        }
-    }
-    if samples.is_empty() {
-        return Ok(Interval { diff: full, lo: f64::NAN, hi: f64::NAN, resamples: 0 });
-    }
-    let (lo, hi) = percentiles_95(&mut samples);
-    Ok(Interval { diff: full, lo, hi, resamples: samples.len() })
+    let diffs = draws(groups, resamples, seed).iter().map(|d| diff(d)).collect::<Result<Vec<f64>>>()?;
+    Ok(interval(&diffs))
 }
 
 /// A validation split's ground truth by sequence (frames without a sequence each stand alone).
@@ -167,7 +174,7 @@ pub fn comparison(runs: &[SeedRun<'_>], resamples: usize) -> Result<String> {
             pi3det_nn::eval::summarize(rep).get(&class_ref).map_or(f64::NAN, |c| c.bev_r40)
         };
         s += &format!(
-            "\n## `{det_name}` — {class} BEV@strict AP_R40 over seeds {:?}: mean ± half-range, and the \
+            "\n## `{det_name}` — {class} BEV@strict AP_R40 over seeds {:?}: mean ± half-range over seeds, and the \
              difference to source-only with its 95 % interval ({resamples} paired draws of validation sequences; \
              ✓ = resolved, ~ = within noise)\n",
             runs.iter().map(|r| r.seed).collect::<Vec<_>>()
@@ -194,6 +201,29 @@ pub fn comparison(runs: &[SeedRun<'_>], resamples: usize) -> Result<String> {
                 sizes.first().copied().unwrap_or(0),
                 if sizes.windows(2).all(|w| w[0] == w[1]) { "" } else { " (differs per seed)" }
             );
+            // One set of draws per task: every row is paired with source-only on the same draws,
+            // and source-only is evaluated on them once.
+            let draws = draws(&sizes, resamples, 0);
+            let on_draws = |mi: usize| -> Option<Result<Vec<f64>>> {
+                let paths: Vec<PathBuf> =
+                    runs.iter().map(|run| cell(run, mi).map(|(_, p)| p)).collect::<Option<_>>()?;
+                Some((|| {
+                    let dets = paths
+                        .iter()
+                        .map(|p| Detections::read(p).with_context(|| format!("reading {}", p.display())))
+                        .collect::<Result<Vec<_>>>()?;
+                    let mut means = Vec::with_capacity(draws.len());
+                    for draw in &draws {
+                        let mut sum = 0.0;
+                        for ((g, d), det) in groups.iter().zip(draw).zip(&dets) {
+                            sum += g.metric(d, det, &opts, &metric)?;
+                        }
+                        means.push(sum / dets.len() as f64);
+                    }
+                    Ok(means)
+                })())
+            };
+            let mut reference: Option<Option<Result<Vec<f64>>>> = None;
             for (mi, m) in suite.methods.iter().enumerate() {
                 let cells: Vec<Option<(CellResult, PathBuf)>> = runs.iter().map(|run| cell(run, mi)).collect();
                 let values: Vec<f64> = cells
@@ -210,39 +240,25 @@ pub fn comparison(runs: &[SeedRun<'_>], resamples: usize) -> Result<String> {
                     .unwrap_or(0);
                 let (mean, spread) = mean_spread(&values);
                 let per_seed: Vec<String> = values.iter().map(|v| format!("{v:.1}")).collect();
-                let mut row =
-                    format!("| {} | {} | {mean:.1} ± {spread:.1} | {num_gt} |", m.label(), per_seed.join(" / "));
-                let pair: Option<Vec<(Detections, Detections)>> = match source {
-                    Some(si) if si != mi && resamples > 0 && cells.iter().all(Option::is_some) => runs
-                        .iter()
-                        .zip(&cells)
-                        .map(|(run, c)| {
-                            let (_, mp) = c.as_ref()?;
-                            let (_, sp) = cell(run, si)?;
-                            Some((Detections::read(mp).ok()?, Detections::read(&sp).ok()?))
-                        })
-                        .collect(),
-                    _ => None,
-                };
-                match pair {
-                    Some(dets) => {
-                        let i = paired_bootstrap(&sizes, resamples, 0, &mut |draw| {
-                            let mut sum = 0.0;
-                            for ((g, d), (md, sd)) in groups.iter().zip(draw).zip(&dets) {
-                                sum += g.metric(d, md, &opts, &metric)? - g.metric(d, sd, &opts, &metric)?;
+                let spread = if values.len() > 1 { format!(" ± {spread:.1}") } else { String::new() };
+                let mut row = format!("| {} | {} | {mean:.1}{spread} | {num_gt} |", m.label(), per_seed.join(" / "));
+                let compared = match source {
+                    Some(si) if si != mi && resamples > 0 => {
+                        let reference = reference.get_or_insert_with(|| on_draws(si));
+                        match (reference.as_ref(), on_draws(mi).as_ref()) {
+                            (Some(Ok(r)), Some(Ok(v))) => {
+                                let diffs: Vec<f64> = v.iter().zip(r).map(|(a, b)| a - b).collect();
+                                let i = interval(&diffs);
+                                let mark = if i.resolved() { "✓" } else { "~" };
+                                format!(" {:+.1} | [{:+.1}, {:+.1}] | {mark} |\n", i.diff, i.lo, i.hi)
                             }
-                            Ok(sum / draw.len() as f64)
-                        })?;
-                        row += &format!(
-                            " {:+.1} | [{:+.1}, {:+.1}] | {} |\n",
-                            i.diff,
-                            i.lo,
-                            i.hi,
-                            if i.resolved() { "✓" } else { "~" }
-                        );
+                            (Some(Err(e)), _) | (_, Some(Err(e))) => format!(" – | no interval: {e:#} | |\n"),
+                            _ => " – | – | |\n".to_string(),
+                        }
                     }
-                    None => row += " – | – | |\n",
-                }
+                    _ => " – | – | |\n".to_string(),
+                };
+                row += &compared;
                 s += &row;
             }
         }

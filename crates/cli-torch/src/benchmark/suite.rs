@@ -90,9 +90,15 @@ impl SimSpec {
     /// a split simulated from a fixed `val_seed` does not depend on the suite's seed.
     pub fn split_key(&self, train: bool, suite_seed: u64) -> String {
         match (train, self.val_seed) {
+            // The validation sequences are the last of `sequences` (a sequence depends on the
+            // seed, the platform and its index), so the total is part of the key.
             (false, Some(v)) => format!(
-                "{} {} × {} frames, {} val sequences, val seed {v} stratified",
-                self.platform, self.sensor, self.frames, self.val_sequences
+                "{} {}: sequences {}..{} × {} frames, val seed {v} stratified",
+                self.platform,
+                self.sensor,
+                self.sequences - self.val_sequences,
+                self.sequences,
+                self.frames
             ),
             _ => format!("{self:?} seed {}", self.seed.unwrap_or(suite_seed)),
         }
@@ -405,14 +411,8 @@ impl Suite {
                     m.label()
                 )));
             }
-            let label = m.label();
             for x in &mut m.ensemble {
-                if let Some(p) = &x.config {
-                    let p = rel(p);
-                    DetectorConfig::from_file(&p)
-                        .with_context(|| ctx(format!("method {label}: ensemble member {}", p.display())))?;
-                    x.config = Some(p);
-                }
+                x.config = x.config.as_deref().map(rel);
             }
         }
         let mut detectors = BTreeMap::new();
@@ -449,7 +449,8 @@ impl Suite {
         }
         for m in &methods {
             for x in m.ensemble.iter().filter_map(|x| x.config.as_ref()) {
-                let c = DetectorConfig::from_file(x)?;
+                let c = DetectorConfig::from_file(x)
+                    .with_context(|| ctx(format!("method {}: ensemble member {}", m.label(), x.display())))?;
                 for (name, d) in &detectors {
                     if c.classes != d.config.classes || c.shift_z != d.config.shift_z {
                         bail!(ctx(format!(

@@ -240,7 +240,7 @@ impl Ctx<'_> {
                     device,
                     resume: None,
                     stage: stage.map(str::to_string),
-                    frame_transform: frame_transform.clone(),
+                    frame_transform,
                 },
                 &mut |e| {
                     if let train::Event::EpochEnd { epoch, mean_loss, seconds, .. } = e {
