@@ -9,6 +9,7 @@
 //! epoch and step, so resuming from an epoch's checkpoint continues exactly as an uninterrupted
 //! run would.
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -44,12 +45,16 @@ pub struct KaConfig {
     /// (`vfe`, `backbone_2d`, `neck`, `dense_head`, `roi_head`, …). Their batch-norm statistics
     /// still follow KA's batches.
     pub frozen: Vec<String>,
+    /// Scales of the target batches' loss terms by name (`cls`, `loc`, `dir`), on top of the
+    /// detector's `loss_weights`: pseudo-labels' boxes are the labeller's own estimates, so a
+    /// target can teach what is there at a different weight than where exactly it sits.
+    pub target_loss_weights: BTreeMap<String, f64>,
 }
 
 impl Default for KaConfig {
     fn default() -> Self {
         // ST3D self-trains at half the source learning rate.
-        Self { epochs: 2, lr: 0.0015, pa_weight: 0.0, frozen: Vec::new() }
+        Self { epochs: 2, lr: 0.0015, pa_weight: 0.0, frozen: Vec::new(), target_loss_weights: BTreeMap::new() }
     }
 }
 
@@ -62,6 +67,21 @@ impl KaConfig {
             return Err(NnError::config(
                 "ka.pa_weight",
                 format!("ka.pa_weight must be in [0, 1) (got {})", self.pa_weight),
+            ));
+        }
+        // A target batch's terms: the heads' classification and box terms (source-only terms
+        // never reach a target batch).
+        const TARGET_TERMS: [&str; 4] = ["cls", "loc", "dir", "hm"];
+        if let Some(k) = self.target_loss_weights.keys().find(|k| !TARGET_TERMS.contains(&k.as_str())) {
+            return Err(NnError::config(
+                "ka.target_loss_weights",
+                format!("ka.target_loss_weights: {k:?} is not a target loss term (one of {TARGET_TERMS:?})"),
+            ));
+        }
+        if let Some((k, w)) = self.target_loss_weights.iter().find(|(_, w)| !(w.is_finite() && **w >= 0.0)) {
+            return Err(NnError::config(
+                "ka.target_loss_weights",
+                format!("ka.target_loss_weights.{k} must be a finite weight ≥ 0 (got {w})"),
             ));
         }
         if let Some(p) = self.frozen.iter().find(|p| p.is_empty() || p.starts_with('.')) {
@@ -127,6 +147,10 @@ pub struct KnowledgeAdaptation {
     /// The target batches' background rules and the band's floor they default to (none: every
     /// unlabelled target output is background, as in self-training baselines).
     negatives: Option<(TargetNegativesConfig, f64)>,
+    /// The pre-adapted model whose scores the target's background learns
+    /// (`target_negatives.teacher_scores`).
+    teacher: Option<Detector>,
+    target_loss_weights: BTreeMap<String, f64>,
 }
 
 impl KnowledgeAdaptation {
@@ -151,6 +175,8 @@ impl KnowledgeAdaptation {
             steps_per_epoch,
             total_steps,
             negatives: None,
+            teacher: None,
+            target_loss_weights: cfg.target_loss_weights.clone(),
         })
     }
 
@@ -158,6 +184,13 @@ impl KnowledgeAdaptation {
     /// `ignore_score` the pseudo-labels' band floor.
     pub fn with_target_negatives(mut self, cfg: &TargetNegativesConfig, ignore_score: f64) -> Self {
         self.negatives = cfg.enabled.then(|| (cfg.clone(), ignore_score));
+        self
+    }
+
+    /// The pre-adapted model as the target background's teacher; used only with target
+    /// negatives whose `teacher_scores` is on.
+    pub fn with_teacher(mut self, teacher: Detector) -> Self {
+        self.teacher = Some(teacher);
         self
     }
 
@@ -232,7 +265,7 @@ impl KnowledgeAdaptation {
                     if let Some(nm) = norms.as_deref_mut() {
                         nm.enter(Domain::Source);
                     }
-                    let (l, z) = domain_pass(det, sb, Domain::Source, None, device, &mut rng)?;
+                    let (l, z) = domain_pass(det, sb, Domain::Source, None, &BTreeMap::new(), device, &mut rng)?;
                     if split_backward {
                         l.backward();
                     }
@@ -244,7 +277,13 @@ impl KnowledgeAdaptation {
                 nm.enter(Domain::Target);
             }
             let neg = self.negatives.as_ref().map(|(c, ignore)| c.for_batch(*ignore, &tb.gt));
-            let (lt, zt) = domain_pass(det, &tb, Domain::Target, neg.as_ref(), device, &mut rng)?;
+            let teacher = match &self.negatives {
+                Some((c, _)) if c.teacher_scores => self.teacher.as_ref(),
+                _ => None,
+            };
+            let target_neg = neg.as_ref().map(|n| (n, teacher));
+            let (lt, zt) =
+                domain_pass(det, &tb, Domain::Target, target_neg, &self.target_loss_weights, device, &mut rng)?;
             let kl = match (zs, zt) {
                 (Some(s), Some(t)) if !split_backward => det.kl_loss(&s, &t),
                 _ => None,
@@ -289,13 +328,14 @@ impl KnowledgeAdaptation {
     }
 }
 
-/// Forward and loss of one domain's batch (a target batch's background under `neg` when given):
-/// the loss total and PFA's latents.
+/// Forward and loss of one domain's batch (a target batch's background under `neg` when given,
+/// with the teacher whose scores it learns): the loss total and PFA's latents.
 fn domain_pass(
     det: &Detector,
     b: &Batch,
     domain: Domain,
-    neg: Option<&TargetNegatives>,
+    neg: Option<(&TargetNegatives, Option<&Detector>)>,
+    scales: &BTreeMap<String, f64>,
     device: Device,
     rng: &mut ChaCha8Rng,
 ) -> Result<(tch::Tensor, Option<pi3det_nn::roi_heads::pfa::Latent>)> {
@@ -304,11 +344,14 @@ fn domain_pass(
     let out = det.forward_train(&x, &b.gt, rng)?;
     let targets = targets.to_device(device);
     let losses = match neg {
-        Some(n) => det.loss_target(&out, &targets, &b.gt, n)?,
+        Some((n, teacher)) => {
+            let teacher = teacher.map(|t| t.dense_eval(&x)).transpose()?;
+            det.loss_target(&out, &targets, &b.gt, n, teacher.as_ref())?
+        }
         None => det.loss(&out, &targets, &b.gt, domain)?,
     };
     let z = det.latent(&out, domain).transpose()?;
-    Ok((losses.total(), z))
+    Ok((losses.total_scaled(scales), z))
 }
 
 #[cfg(test)]
@@ -336,5 +379,17 @@ mod tests {
         let e = typo.trainables(&det).unwrap_err().to_string();
         assert!(e.contains("ka.frozen") && e.contains("\"backbone\""), "{e}");
         assert!(KaConfig { frozen: vec![String::new()], ..Default::default() }.validate().is_err());
+    }
+
+    #[test]
+    fn target_loss_weights_name_real_terms_and_finite_weights() {
+        let with =
+            |k: &str, w: f64| KaConfig { target_loss_weights: [(k.to_string(), w)].into(), ..Default::default() };
+        with("loc", 0.0).validate().unwrap();
+        with("cls", 0.5).validate().unwrap();
+        let e = with("lco", 0.0).validate().unwrap_err().to_string();
+        assert!(e.contains("\"lco\"") && e.contains("target_loss_weights"), "{e}");
+        assert!(with("loc", -1.0).validate().is_err());
+        assert!(with("loc", f64::NAN).validate().is_err());
     }
 }

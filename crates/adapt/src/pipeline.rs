@@ -586,6 +586,10 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     };
     let mut ka = KnowledgeAdaptation::new(&det, &cfg.ka, opts.target.len())?
         .with_target_negatives(&cfg.target_negatives, cfg.pseudo_labels.ignore_score);
+    if cfg.target_negatives.enabled && cfg.target_negatives.teacher_scores {
+        let (teacher, _) = checkpoint::load_detector_with_post(&pa_path, Some(&det_cfg.post), opts.device)?;
+        ka = ka.with_teacher(teacher);
+    }
     let mut start = 0;
     if let Some(p) = &resume_ka {
         let ck = checkpoint::load(p)?;

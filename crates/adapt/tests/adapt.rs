@@ -304,6 +304,14 @@ fn scarce_pseudo_labels_leave_what_the_pa_model_found() {
     assert_eq!(json["guard"]["ship"], "adapted");
     assert_eq!(json["label_rounds"][0]["positives"]["positives"], 0);
 
+    // The PA model's scores as the background's teacher: loaded and run beside KA, and under
+    // the same coverage rule (a frame of ignored boxes only teaches nothing either way).
+    let mut teach = cfg.clone();
+    teach.target_negatives.teacher_scores = true;
+    let t = adapt(&teach, "teacher");
+    assert!(t.ka_epochs.iter().all(|e| e.mean_target == 0.0), "{:?}", t.ka_epochs);
+    assert!(t.guard.as_ref().is_some_and(|g| g.retained >= cfg.guard.min_retention), "{:?}", t.guard);
+
     // Without the rules the same labels make every target output background.
     let mut off = cfg.clone();
     off.target_negatives.enabled = false;

@@ -292,15 +292,26 @@ impl Detector {
 
     /// The loss of a Knowledge-Adaptation target batch whose background follows `neg`
     /// ([`crate::losses::target_negatives`]): the target's terms of [`loss`](Self::loss), with the
-    /// dense head's and the second stage's classification under the rules.
+    /// dense head's and the second stage's classification under the rules; `teacher`: the
+    /// pre-adapted model's dense outputs on the same batch ([`dense_eval`](Self::dense_eval)),
+    /// whose scores the dense head's background learns.
     pub fn loss_target(
         &self,
         out: &Forward,
         targets: &BatchTargets,
         gt: &[FrameGt],
         neg: &crate::losses::target_negatives::TargetNegatives,
+        teacher: Option<&DenseOutput>,
     ) -> Result<LossTerms> {
-        self.loss_impl(out, targets, gt, Domain::Target, Some(neg))
+        self.loss_impl(out, targets, gt, Domain::Target, Some((neg, teacher)))
+    }
+
+    /// The dense head's outputs on a batch in eval mode, without gradients and without the
+    /// second stage: what a teacher's scores need.
+    pub fn dense_eval(&self, x: &Inputs) -> Result<DenseOutput> {
+        let _guard = tch::no_grad_guard();
+        let NeckOutput { bev, .. } = self.bev_features(x, false)?;
+        Ok(self.dense_head.forward_t(&bev, false))
     }
 
     fn loss_impl(
@@ -309,13 +320,14 @@ impl Detector {
         targets: &BatchTargets,
         gt: &[FrameGt],
         domain: Domain,
-        neg: Option<&crate::losses::target_negatives::TargetNegatives>,
+        neg: Option<(&crate::losses::target_negatives::TargetNegatives, Option<&DenseOutput>)>,
     ) -> Result<LossTerms> {
         let mut losses = LossTerms::new(&self.cfg().loss_weights);
         match neg {
-            Some(n) => self.dense_head.loss_target(&out.dense, targets, n, &mut losses)?,
+            Some((n, teacher)) => self.dense_head.loss_target(&out.dense, targets, n, teacher, &mut losses)?,
             None => self.dense_head.loss(&out.dense, targets, &mut losses)?,
         }
+        let neg = neg.map(|(n, _)| n);
         if let (Some(stage), Some(roi)) = (&self.roi_head, &out.roi) {
             let t = roi.targets.as_ref().ok_or_else(|| {
                 NnError::Input("the second stage's loss needs a forward_train pass (sampled RoIs)".into())

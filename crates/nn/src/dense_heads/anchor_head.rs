@@ -182,8 +182,15 @@ impl DenseHead for AnchorHead {
         losses.add("dir", dir);
     }
 
-    fn loss_target(&self, out: &AnchorOutput, t: &AnchorBatchTargets, neg: &TargetNegatives, losses: &mut LossTerms) {
-        let (_, [cls, loc, dir]) = AnchorHead::loss_with(self, out, t, Some(neg));
+    fn loss_target(
+        &self,
+        out: &AnchorOutput,
+        t: &AnchorBatchTargets,
+        neg: &TargetNegatives,
+        teacher: Option<&AnchorOutput>,
+        losses: &mut LossTerms,
+    ) {
+        let (_, [cls, loc, dir]) = AnchorHead::loss_with(self, out, t, Some((neg, teacher.map(|o| &o.cls))));
         losses.add("cls", cls);
         losses.add("loc", loc);
         losses.add("dir", dir);
@@ -264,16 +271,20 @@ impl AnchorHead {
     /// ([`crate::losses::target_negatives`]): background anchors the model scores at least
     /// `neg.unsure_score` and that overlap no box are ignored, and each frame's background
     /// anchors are weighted by its `neg.frame_weight`. The normalisation (positives per frame)
-    /// is unchanged, so a frame's background can only lose weight.
+    /// is unchanged, so a frame's background can only lose weight. With the teacher's class
+    /// logits `[B, N, C]` (the pre-adapted model on the same batch), the background anchors
+    /// that are not next to a positive learn the teacher's scores instead of 0
+    /// ([`losses::quality_focal_loss`]).
     pub fn loss_with(
         &self,
         out: &AnchorOutput,
         t: &AnchorBatchTargets,
-        neg: Option<&TargetNegatives>,
+        neg: Option<(&TargetNegatives, Option<&Tensor>)>,
     ) -> (Tensor, [Tensor; 3]) {
         let (b, n, c) = out.cls.size3().expect("cls is [B, N, C]");
+        let mut soft: Option<(Tensor, Tensor)> = None;
         let (labels, bg_weights) = match neg {
-            Some(neg) => {
+            Some((neg, teacher)) => {
                 let _no_grad = tch::no_grad_guard();
                 let scores = out.cls.detach().sigmoid().amax([-1].as_slice(), false);
                 let background = t.labels.eq(0);
@@ -283,6 +294,13 @@ impl AnchorHead {
                 let unsure = neg.unsure(&scores, &background, near.as_ref());
                 let labels = t.labels.masked_fill(&unsure, -1);
                 let w = neg.background_weights(&labels.eq(0));
+                if let Some(teacher) = teacher {
+                    let far = match &near {
+                        Some(near) => labels.eq(0).logical_and(&near.logical_not()),
+                        None => labels.eq(0),
+                    };
+                    soft = Some((far.to_kind(Kind::Float), teacher.detach().sigmoid()));
+                }
                 (labels, Some(w))
             }
             None => (t.labels.shallow_clone(), None),
@@ -303,9 +321,14 @@ impl AnchorHead {
         );
         let one_hot = one_hot.narrow(-1, 1, c);
         let bs = b as f64;
-        let cls =
-            losses::sigmoid_focal_loss(&out.cls, &one_hot, &cls_weights, self.cfg.focal_alpha, self.cfg.focal_gamma)
-                * (self.cfg.cls_weight / bs);
+        let (alpha, gamma) = (self.cfg.focal_alpha, self.cfg.focal_gamma);
+        let cls = match &soft {
+            None => losses::sigmoid_focal_loss(&out.cls, &one_hot, &cls_weights, alpha, gamma),
+            Some((far, teacher)) => {
+                let hard = losses::sigmoid_focal_loss(&out.cls, &one_hot, &(&cls_weights * (1.0 - far)), alpha, gamma);
+                hard + losses::quality_focal_loss(&out.cls, teacher, &(&cls_weights * far), alpha, gamma)
+            }
+        } * (self.cfg.cls_weight / bs);
         let (loc, dir) = if t.pos_index.size()[0] > 0 {
             let box_preds = out.boxes.view([b * n, 7]).index_select(0, &t.pos_index);
             let (p, tg) = losses::add_sin_difference(&box_preds, &t.pos_codes, 6);
@@ -465,7 +488,8 @@ mod tests {
             boxes: Tensor::randn([2, n, 7], f) * 0.1,
             dir: Tensor::randn([2, n, 2], f),
         };
-        let cls_loss = |neg: Option<&TargetNegatives>| head.loss_with(&out, &t, neg).1[0].double_value(&[]);
+        let cls_loss =
+            |neg: Option<&TargetNegatives>| head.loss_with(&out, &t, neg.map(|n| (n, None))).1[0].double_value(&[]);
         // With an unsure score no output reaches, the rules are the frame weights alone.
         let rules = |w1: f64| TargetNegatives { unsure_score: 1.0, frame_weight: vec![1.0, w1] };
         let plain = cls_loss(None);
@@ -479,7 +503,7 @@ mod tests {
         let want = head.loss(&out, &t_ign).1[0].double_value(&[]);
         assert!((l0 - want).abs() < 1e-6, "{l0} vs {want}");
         // No gradient at all on the frame without positives.
-        head.loss_with(&out, &t, Some(&rules(0.0))).0.backward();
+        head.loss_with(&out, &t, Some((&rules(0.0), None))).0.backward();
         let g = cls.grad();
         assert_eq!(g.get(1).abs().sum(Kind::Float).double_value(&[]), 0.0, "frame 1 pushed down");
         assert!(g.get(0).abs().sum(Kind::Float).double_value(&[]) > 0.0);
@@ -495,7 +519,7 @@ mod tests {
         let out2 =
             AnchorOutput { cls: cls2.shallow_clone(), boxes: out.boxes.shallow_clone(), dir: out.dir.shallow_clone() };
         let unsure = TargetNegatives { unsure_score: 0.5, frame_weight: vec![1.0, 1.0] };
-        head.loss_with(&out2, &t, Some(&unsure)).0.backward();
+        head.loss_with(&out2, &t, Some((&unsure, None))).0.backward();
         let g: Vec<f32> = Vec::try_from(cls2.grad().get(0).view([-1])).unwrap();
         assert_eq!((g[2 * far], g[2 * far + 1]), (0.0, 0.0), "an unsure background anchor is ignored");
         assert!(g[2 * near] > 0.0, "one overlapping a box stays background");
@@ -505,5 +529,70 @@ mod tests {
             AnchorOutput { cls: cls3.shallow_clone(), boxes: out.boxes.shallow_clone(), dir: out.dir.shallow_clone() };
         head.loss(&out3, &t).0.backward();
         assert!(cls3.grad().get(0).get(far as i64).get(0).double_value(&[]) > 0.0);
+    }
+
+    /// The teacher's scores on a hand-built target batch: a background anchor far from the
+    /// positive, which the student scores below the teacher, is pushed up towards the teacher's
+    /// score (without the teacher it is pushed down); one next to the positive stays a hard
+    /// negative; and a student equal to the teacher on every soft anchor has exactly the
+    /// classification loss of the hard anchors alone.
+    #[test]
+    fn target_background_learns_the_teachers_scores() {
+        let map = CenterMap { h: 16, w: 16, cell: [0.8, 0.8], origin: [-6.4, -6.4] };
+        let cfg = AnchorHeadConfig::default();
+        let vs = nn::VarStore::new(Device::Cpu);
+        let head = cfg.init(vs.root(), 8, 2, &map);
+        let assigner = cfg.assigner(&map);
+        let car = Box3d::new(1.1, -0.7, 0.8, 4.4, 1.9, 1.6, 0.2);
+        let f0 = assigner.assign(&[car], &[0], &[], &[]);
+        let t = assigner.collate(&[&f0]);
+        let n = assigner.anchors.len() as i64;
+        let far = (0..n as usize).find(|&k| f0.labels[k] == 0 && !f0.near_positive.contains(&(k as i64))).unwrap();
+        let near = *f0.near_positive.iter().find(|&&k| f0.labels[k as usize] == 0).unwrap() as usize;
+        tch::manual_seed(5);
+        let f = (Kind::Float, Device::Cpu);
+        let student = Tensor::randn([1, n, 2], f) - 4.0;
+        // The teacher believes both anchors hold a car at 0.4 (logit ≈ −0.41); the student
+        // scores them ≈ 0.02, below the unsure floor, so they are background for the rules.
+        let mut bump = vec![0f32; n as usize * 2];
+        for k in [far, near] {
+            bump[2 * k] = 1.0;
+        }
+        let bump = Tensor::from_slice(&bump).view([1, n, 2]);
+        let teacher = &student * (1.0 - &bump) + &bump * (0.4f64 / 0.6).ln();
+        let cls = student.set_requires_grad(true);
+        let out = AnchorOutput {
+            cls: cls.shallow_clone(),
+            boxes: Tensor::zeros([1, n, 7], f),
+            dir: Tensor::zeros([1, n, 2], f),
+        };
+        let rules = TargetNegatives { unsure_score: 0.3, frame_weight: vec![1.0] };
+        head.loss_with(&out, &t, Some((&rules, Some(&teacher)))).0.backward();
+        let g: Vec<f32> = Vec::try_from(cls.grad().view([-1])).unwrap();
+        assert!(g[2 * far] < 0.0, "a far background anchor rises towards the teacher's score: {}", g[2 * far]);
+        assert!(g[2 * near] > 0.0, "next to a positive it stays a hard negative: {}", g[2 * near]);
+        let plain = cls.detach().set_requires_grad(true);
+        let out_plain =
+            AnchorOutput { cls: plain.shallow_clone(), boxes: out.boxes.shallow_clone(), dir: out.dir.shallow_clone() };
+        head.loss_with(&out_plain, &t, Some((&rules, None))).0.backward();
+        assert!(plain.grad().view([-1]).double_value(&[2 * far as i64]) > 0.0, "without a teacher it is pushed down");
+
+        // Student = teacher everywhere: the soft anchors add nothing, so the loss is that of
+        // the same batch with every soft anchor ignored.
+        let same = AnchorOutput {
+            cls: teacher.shallow_clone(),
+            boxes: out.boxes.shallow_clone(),
+            dir: out.dir.shallow_clone(),
+        };
+        let with_teacher = head.loss_with(&same, &t, Some((&rules, Some(&teacher)))).1[0].double_value(&[]);
+        let mut hard_only = f0.clone();
+        for k in 0..n as usize {
+            if hard_only.labels[k] == 0 && !f0.near_positive.contains(&(k as i64)) {
+                hard_only.labels[k] = -1;
+            }
+        }
+        let t_hard = assigner.collate(&[&hard_only]);
+        let want = head.loss_with(&same, &t_hard, Some((&rules, None))).1[0].double_value(&[]);
+        assert!((with_teacher - want).abs() < 1e-6 * want.max(1.0), "{with_teacher} vs {want}");
     }
 }

@@ -44,8 +44,17 @@ pub trait DenseHead {
     /// Adds the head's named, weighted loss terms.
     fn loss(&self, out: &Self::Output, targets: &Self::Targets, losses: &mut LossTerms);
     /// The loss of a Knowledge-Adaptation target batch under its background rules
-    /// ([`crate::losses::target_negatives`]); a head without them trains the target as any batch.
-    fn loss_target(&self, out: &Self::Output, targets: &Self::Targets, _neg: &TargetNegatives, losses: &mut LossTerms) {
+    /// ([`crate::losses::target_negatives`]), with `teacher` the pre-adapted model's outputs on
+    /// the same batch when the rules learn its scores; a head without the rules trains the
+    /// target as any batch.
+    fn loss_target(
+        &self,
+        out: &Self::Output,
+        targets: &Self::Targets,
+        _neg: &TargetNegatives,
+        _teacher: Option<&Self::Output>,
+        losses: &mut LossTerms,
+    ) {
         self.loss(out, targets, losses)
     }
     /// Candidates of frame `frame` of the batch scoring at least `score_threshold`, at most
@@ -121,6 +130,7 @@ pub trait AnyDenseHead {
         out: &DenseOutput,
         targets: &BatchTargets,
         neg: &TargetNegatives,
+        teacher: Option<&DenseOutput>,
         losses: &mut LossTerms,
     ) -> Result<()>;
     fn candidates(&self, out: &DenseOutput, frame: i64, score_threshold: f64, pre_max: i64) -> Result<Candidates>;
@@ -143,11 +153,16 @@ impl<H: DenseHead> AnyDenseHead for H {
         out: &DenseOutput,
         targets: &BatchTargets,
         neg: &TargetNegatives,
+        teacher: Option<&DenseOutput>,
         losses: &mut LossTerms,
     ) -> Result<()> {
         let out = out.downcast_ref::<H::Output>().ok_or_else(|| mismatch("outputs"))?;
         let t = targets.downcast_ref::<H::Targets>().ok_or_else(|| mismatch("targets"))?;
-        DenseHead::loss_target(self, out, t, neg, losses);
+        let teacher = match teacher {
+            Some(d) => Some(d.downcast_ref::<H::Output>().ok_or_else(|| mismatch("teacher outputs"))?),
+            None => None,
+        };
+        DenseHead::loss_target(self, out, t, neg, teacher, losses);
         Ok(())
     }
     fn candidates(&self, out: &DenseOutput, frame: i64, score_threshold: f64, pre_max: i64) -> Result<Candidates> {

@@ -48,6 +48,22 @@ impl LossTerms {
         }
     }
 
+    /// The sum of the terms, each further scaled by `extra[name]` where given (KA's target
+    /// batches weigh their terms apart from the source's).
+    pub fn total_scaled(&self, extra: &BTreeMap<String, f64>) -> Tensor {
+        if extra.is_empty() {
+            return self.total();
+        }
+        let mut it = self.terms.iter().map(|(n, t)| match extra.get(*n) {
+            Some(&w) => t * w,
+            None => t.shallow_clone(),
+        });
+        match it.next() {
+            Some(first) => it.fold(first, |acc, t| acc + t),
+            None => Tensor::zeros([], (Kind::Float, tch::Device::Cpu)),
+        }
+    }
+
     /// Configured scales whose name no stage used (a typo would otherwise be silently ignored).
     pub fn unused_scales(&self) -> Vec<String> {
         self.scale.keys().filter(|k| !self.terms.iter().any(|(n, _)| n == k)).cloned().collect()
@@ -64,6 +80,19 @@ pub fn sigmoid_focal_loss(logits: &Tensor, targets: &Tensor, weights: &Tensor, a
     // Numerically stable BCE with logits.
     let bce = logits.clamp_min(0.0) - logits * targets + logits.abs().neg().exp().log1p();
     let l: Tensor = focal_w * bce * weights.unsqueeze(-1);
+    l.sum(l.kind())
+}
+
+/// Quality focal loss (Li et al., "Generalized Focal Loss", 2020) against soft targets in
+/// [0, 1]: `α_t · |σ(x) − t|^γ · BCE(x, t)` per element, times per-row weights `[...]`, summed.
+/// Unlike [`sigmoid_focal_loss`] with a soft target, its minimum is at `σ(x) = t`, so an output
+/// taught a teacher's score of 0.15 settles at 0.15 rather than below it.
+pub fn quality_focal_loss(logits: &Tensor, targets: &Tensor, weights: &Tensor, alpha: f64, gamma: f64) -> Tensor {
+    let p = logits.sigmoid();
+    let alpha_w = targets * alpha + one_minus(targets) * (1.0 - alpha);
+    let scale = (p - targets).abs().pow_tensor_scalar(gamma);
+    let bce = logits.clamp_min(0.0) - logits * targets + logits.abs().neg().exp().log1p();
+    let l: Tensor = alpha_w * scale * bce * weights.unsqueeze(-1);
     l.sum(l.kind())
 }
 
@@ -208,5 +237,38 @@ mod tests {
         assert!(g[1] > 0.0 && g[1] < g[2], "near-peak cells are pushed down less");
         let l1 = reg_l1_loss(&f(&[1.0, 2.0]).view([1, 2]), &f(&[0.0, 0.0]).view([1, 2]), &f(&[1.0, 1.0]), 1.0);
         assert!((l1.double_value(&[]) - 3.0).abs() < 1e-3);
+    }
+
+    /// A soft target's loss is minimal where the score equals it: zero gradient there, pushed
+    /// up below it and down above it; with hard targets it is the focal loss without its
+    /// `pt`-weight's asymmetry (same sign of gradient as [`sigmoid_focal_loss`]).
+    #[test]
+    fn quality_focal_loss_settles_on_the_soft_target() {
+        let t = 0.15f64;
+        let at = (t / (1.0 - t)).ln();
+        let logits = f(&[at as f32, (at - 2.0) as f32, (at + 2.0) as f32]).view([1, 3]).set_requires_grad(true);
+        let targets = f(&[t as f32; 3]).view([1, 3]);
+        quality_focal_loss(&logits, &targets, &f(&[1.0]), 0.25, 2.0).backward();
+        let g: Vec<f32> = logits.grad().view([-1]).try_into().unwrap();
+        assert!(g[0].abs() < 1e-6, "minimum at the target: {g:?}");
+        assert!(g[1] < 0.0 && g[2] > 0.0, "{g:?}");
+        // The focal loss with the same soft target is still falling at σ = t: it would settle
+        // below the teacher's score.
+        let l2 = f(&[at as f32]).view([1, 1]).set_requires_grad(true);
+        sigmoid_focal_loss(&l2, &f(&[t as f32]).view([1, 1]), &f(&[1.0]), 0.25, 2.0).backward();
+        assert!(l2.grad().double_value(&[0, 0]) > 0.0);
+    }
+
+    #[test]
+    fn total_scaled_weighs_terms_by_name() {
+        let mut scale = BTreeMap::new();
+        scale.insert("loc".to_string(), 2.0);
+        let mut l = LossTerms::new(&scale);
+        l.add("cls", f(&[1.0]).sum(Kind::Float));
+        l.add("loc", f(&[3.0]).sum(Kind::Float));
+        close(&l.total(), 7.0);
+        close(&l.total_scaled(&BTreeMap::new()), 7.0);
+        let extra: BTreeMap<String, f64> = [("loc".to_string(), 0.0), ("dir".to_string(), 5.0)].into();
+        close(&l.total_scaled(&extra), 1.0);
     }
 }

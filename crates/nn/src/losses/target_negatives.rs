@@ -41,17 +41,29 @@ pub struct TargetNegativesConfig {
     /// A frame's background weight reaches 1 when its positives are this share of its
     /// pseudo-labels (positives and ignored boxes).
     pub full_coverage: f64,
+    /// The dense head's background outputs that are not next to a positive learn the
+    /// pre-adapted model's own scores on the same batch instead of 0 (soft targets): what the
+    /// labeller half-believed stays half-believed, so objects it saw too faintly for a
+    /// pseudo-label are not trained away. Costs one extra eval-mode pass of the pre-adapted
+    /// model per target batch.
+    pub teacher_scores: bool,
 }
 
 impl Default for TargetNegativesConfig {
     fn default() -> Self {
-        Self { enabled: true, unsure_score: None, full_coverage: 0.25 }
+        Self { enabled: true, unsure_score: None, full_coverage: 0.25, teacher_scores: false }
     }
 }
 
 impl TargetNegativesConfig {
     pub fn validate(&self) -> Result<()> {
         let unsure_ok = self.unsure_score.is_none_or(|s| (0.0..1.0).contains(&s));
+        if self.teacher_scores && !self.enabled {
+            return Err(NnError::config(
+                "target_negatives.teacher_scores",
+                "target_negatives.teacher_scores needs target_negatives.enabled = true",
+            ));
+        }
         if unsure_ok && self.full_coverage.is_finite() && self.full_coverage > 0.0 && self.full_coverage <= 1.0 {
             Ok(())
         } else {
