@@ -462,18 +462,23 @@ mod tests {
         assert_ne!(loss_values(&head, &noisy, &t_plain)[1], l_plain[1], "background anchors do count");
     }
 
+    /// A two-class anchor head on a 16 × 16 map, its assigner and a car on the map: the KA
+    /// target-loss tests' batch.
+    fn small_target_head() -> (nn::VarStore, AnchorHead, AnchorAssigner, Box3d) {
+        let map = CenterMap { h: 16, w: 16, cell: [0.8, 0.8], origin: [-6.4, -6.4] };
+        let cfg = AnchorHeadConfig::default();
+        let vs = nn::VarStore::new(Device::Cpu);
+        let head = cfg.init(vs.root(), 8, 2, &map);
+        (vs, head, cfg.assigner(&map), Box3d::new(1.1, -0.7, 0.8, 4.4, 1.9, 1.6, 0.2))
+    }
+
     /// KA's background rules on a hand-built target batch of two frames: frame 0 has a positive
     /// car, frame 1 only an ignored one (coverage 0). The coverage weight scales exactly the
     /// background part of each frame's classification loss, a frame without positives pushes
     /// nothing down, and unsure background anchors leave the loss unless they overlap a box.
     #[test]
     fn target_background_follows_coverage_and_unsure_outputs() {
-        let map = CenterMap { h: 16, w: 16, cell: [0.8, 0.8], origin: [-6.4, -6.4] };
-        let cfg = AnchorHeadConfig::default();
-        let vs = nn::VarStore::new(Device::Cpu);
-        let head = cfg.init(vs.root(), 8, 2, &map);
-        let assigner = cfg.assigner(&map);
-        let car = Box3d::new(1.1, -0.7, 0.8, 4.4, 1.9, 1.6, 0.2);
+        let (_vs, head, assigner, car) = small_target_head();
         let f0 = assigner.assign(&[car], &[0], &[], &[]);
         let f1 = assigner.assign(&[], &[], &[Box3d { x: -3.0, y: 3.0, ..car }], &[0]);
         assert!(!f0.pos_index.is_empty() && !f0.near_positive.is_empty() && f1.pos_index.is_empty());
@@ -538,12 +543,7 @@ mod tests {
     /// classification loss of the hard anchors alone.
     #[test]
     fn target_background_learns_the_teachers_scores() {
-        let map = CenterMap { h: 16, w: 16, cell: [0.8, 0.8], origin: [-6.4, -6.4] };
-        let cfg = AnchorHeadConfig::default();
-        let vs = nn::VarStore::new(Device::Cpu);
-        let head = cfg.init(vs.root(), 8, 2, &map);
-        let assigner = cfg.assigner(&map);
-        let car = Box3d::new(1.1, -0.7, 0.8, 4.4, 1.9, 1.6, 0.2);
+        let (_vs, head, assigner, car) = small_target_head();
         let f0 = assigner.assign(&[car], &[0], &[], &[]);
         let t = assigner.collate(&[&f0]);
         let n = assigner.anchors.len() as i64;
