@@ -45,7 +45,7 @@ pub struct KaConfig {
     /// (`vfe`, `backbone_2d`, `neck`, `dense_head`, `roi_head`, …). Their batch-norm statistics
     /// still follow KA's batches.
     pub frozen: Vec<String>,
-    /// Scales of the target batches' loss terms by name (`cls`, `loc`, `dir`), on top of the
+    /// Scales of the target batches' loss terms by name (`cls`, `loc`, `dir`, `hm`), on top of the
     /// detector's `loss_weights`: pseudo-labels' boxes are the labeller's own estimates, so a
     /// target can teach what is there at a different weight than where exactly it sits.
     pub target_loss_weights: BTreeMap<String, f64>,
@@ -187,8 +187,8 @@ impl KnowledgeAdaptation {
         self
     }
 
-    /// The pre-adapted model as the target background's teacher; used only with target
-    /// negatives whose `teacher_scores` is on.
+    /// The pre-adapted model as the target background's teacher (`target_negatives.teacher_scores`;
+    /// it takes part only where the background rules are enabled).
     pub fn with_teacher(mut self, teacher: Detector) -> Self {
         self.teacher = Some(teacher);
         self
@@ -277,11 +277,7 @@ impl KnowledgeAdaptation {
                 nm.enter(Domain::Target);
             }
             let neg = self.negatives.as_ref().map(|(c, ignore)| c.for_batch(*ignore, &tb.gt));
-            let teacher = match &self.negatives {
-                Some((c, _)) if c.teacher_scores => self.teacher.as_ref(),
-                _ => None,
-            };
-            let target_neg = neg.as_ref().map(|n| (n, teacher));
+            let target_neg = neg.as_ref().map(|n| (n, self.teacher.as_ref()));
             let (lt, zt) =
                 domain_pass(det, &tb, Domain::Target, target_neg, &self.target_loss_weights, device, &mut rng)?;
             let kl = match (zs, zt) {

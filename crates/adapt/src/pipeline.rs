@@ -26,7 +26,7 @@ use crate::pseudo_labels::{self, LabelQuality, PseudoLabelConfig, PseudoLabeled}
 use crate::thresholds::{self, AdaptiveThresholdConfig, Thresholds};
 use pi3det_nn::augment::{AugmentConfig, RandomPlatformJitterConfig};
 use pi3det_nn::checkpoint::{self, TrainState};
-use pi3det_nn::config::DetectorConfig;
+use pi3det_nn::config::{DetectorConfig, HeadConfig};
 use pi3det_nn::config_override::{read_config, ConfigOverride};
 use pi3det_nn::data_loader::Subset;
 use pi3det_nn::detect::{self, FrameDetections};
@@ -131,6 +131,14 @@ impl AdaptConfig {
         self.pseudo_labels.validate()?;
         self.adaptive_thresholds.validate()?;
         self.target_negatives.validate()?;
+        // Only the anchor head learns a teacher's scores; another head would pay for the
+        // teacher's pass and change nothing.
+        if self.target_negatives.teacher_scores && !matches!(self.detector.head, HeadConfig::Anchor(_)) {
+            return Err(NnError::config(
+                "target_negatives.teacher_scores",
+                "target_negatives.teacher_scores needs the anchor head (detector.head); the center head has no teacher rule",
+            ));
+        }
         self.guard.validate()?;
         self.ka.validate()
     }
@@ -586,7 +594,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     };
     let mut ka = KnowledgeAdaptation::new(&det, &cfg.ka, opts.target.len())?
         .with_target_negatives(&cfg.target_negatives, cfg.pseudo_labels.ignore_score);
-    if cfg.target_negatives.enabled && cfg.target_negatives.teacher_scores {
+    if cfg.target_negatives.teacher_scores {
         let (teacher, _) = checkpoint::load_detector_with_post(&pa_path, Some(&det_cfg.post), opts.device)?;
         ka = ka.with_teacher(teacher);
     }

@@ -64,5 +64,15 @@ fn a_misspelt_key_or_a_bad_value_names_the_file_and_the_override() {
     assert!(e.contains("net.toml") && e.contains("pfa"), "{e}");
     let e = AdaptConfig::from_file_with(&path, &[set("pseudo_labels.positive_score=1.5")]).unwrap_err().to_string();
     assert!(e.contains("net.toml") && e.contains("positive_score"), "{e}");
+    // The new KA knobs: a misspelt term, a NaN weight, and a teacher on a head without the rule.
+    let e = AdaptConfig::from_file_with(&path, &[set("ka.target_loss_weights.lco=0")]).unwrap_err().to_string();
+    assert!(e.contains("net.toml") && e.contains("lco"), "{e}");
+    let e = AdaptConfig::from_file_with(&path, &[set("ka.target_loss_weights.loc=nan")]).unwrap_err().to_string();
+    assert!(e.contains("target_loss_weights"), "{e}");
+    AdaptConfig::from_file_with(&path, &[set("target_negatives.teacher_scores=true")]).unwrap();
+    let mut center = AdaptConfig::from_file_with(&path, &[set("target_negatives.teacher_scores=true")]).unwrap();
+    center.detector.head = pi3det_nn::config::HeadConfig::Center(Default::default());
+    let e = center.validate().unwrap_err().to_string();
+    assert!(e.contains("teacher_scores") && e.contains("anchor head"), "{e}");
     assert_eq!(std::fs::read_to_string(&path).unwrap(), before, "the file is never written");
 }

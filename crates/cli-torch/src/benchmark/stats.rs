@@ -72,7 +72,9 @@ pub fn interval(diffs: &[f64]) -> Interval {
     Interval { diff: full, lo, hi, resamples: samples.len() }
 }
 
-/// [`draws`] and [`interval`] with `diff` computing the difference on each draw.
+/// [`draws`] and [`interval`] with `diff` computing the difference on each draw (the tests'
+/// shorthand; the comparison table shares one set of draws between rows).
+#[cfg(test)]
 pub fn paired_bootstrap(
     groups: &[usize],
     resamples: usize,

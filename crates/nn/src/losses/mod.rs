@@ -13,6 +13,12 @@ fn one_minus(t: &Tensor) -> Tensor {
     t.neg() + 1.0
 }
 
+/// Binary cross-entropy of `logits` against targets in [0, 1], per element, in the numerically
+/// stable form `max(x, 0) − x·t + log(1 + e^(−|x|))`.
+fn bce_with_logits(logits: &Tensor, targets: &Tensor) -> Tensor {
+    logits.clamp_min(0.0) - logits * targets + logits.abs().neg().exp().log1p()
+}
+
 /// The training loss as a named sum. Every stage (dense head, RoI head, later alignment losses)
 /// adds its terms, already weighted by its own config; `loss_weights` in the detector config
 /// scales any term by name on top, so a new term needs no change to the training loop.
@@ -41,27 +47,20 @@ impl LossTerms {
 
     /// The sum of the terms (a zero scalar when there are none).
     pub fn total(&self) -> Tensor {
-        let mut it = self.terms.iter().map(|(_, t)| t);
-        match it.next() {
-            Some(first) => it.fold(first.shallow_clone(), |acc, t| acc + t),
-            None => Tensor::zeros([], (Kind::Float, tch::Device::Cpu)),
-        }
+        self.total_scaled(&BTreeMap::new())
     }
 
     /// The sum of the terms, each further scaled by `extra[name]` where given (KA's target
     /// batches weigh their terms apart from the source's).
     pub fn total_scaled(&self, extra: &BTreeMap<String, f64>) -> Tensor {
-        if extra.is_empty() {
-            return self.total();
-        }
-        let mut it = self.terms.iter().map(|(n, t)| match extra.get(*n) {
-            Some(&w) => t * w,
-            None => t.shallow_clone(),
-        });
-        match it.next() {
-            Some(first) => it.fold(first, |acc, t| acc + t),
-            None => Tensor::zeros([], (Kind::Float, tch::Device::Cpu)),
-        }
+        self.terms
+            .iter()
+            .map(|(n, t)| match extra.get(*n) {
+                Some(&w) => t * w,
+                None => t.shallow_clone(),
+            })
+            .reduce(|acc, t| acc + t)
+            .unwrap_or_else(|| Tensor::zeros([], (Kind::Float, tch::Device::Cpu)))
     }
 
     /// Configured scales whose name no stage used (a typo would otherwise be silently ignored).
@@ -77,8 +76,7 @@ pub fn sigmoid_focal_loss(logits: &Tensor, targets: &Tensor, weights: &Tensor, a
     let alpha_w = targets * alpha + one_minus(targets) * (1.0 - alpha);
     let pt = targets * one_minus(&p) + one_minus(targets) * &p;
     let focal_w = alpha_w * pt.pow_tensor_scalar(gamma);
-    // Numerically stable BCE with logits.
-    let bce = logits.clamp_min(0.0) - logits * targets + logits.abs().neg().exp().log1p();
+    let bce = bce_with_logits(logits, targets);
     let l: Tensor = focal_w * bce * weights.unsqueeze(-1);
     l.sum(l.kind())
 }
@@ -91,7 +89,7 @@ pub fn quality_focal_loss(logits: &Tensor, targets: &Tensor, weights: &Tensor, a
     let p = logits.sigmoid();
     let alpha_w = targets * alpha + one_minus(targets) * (1.0 - alpha);
     let scale = (p - targets).abs().pow_tensor_scalar(gamma);
-    let bce = logits.clamp_min(0.0) - logits * targets + logits.abs().neg().exp().log1p();
+    let bce = bce_with_logits(logits, targets);
     let l: Tensor = alpha_w * scale * bce * weights.unsqueeze(-1);
     l.sum(l.kind())
 }
