@@ -24,6 +24,7 @@ use crate::guard::{self, Comparison, GuardConfig, PositiveStats};
 use crate::ka::{DomainData, KaConfig, KaStep, KnowledgeAdaptation};
 use crate::pseudo_labels::{self, LabelQuality, PseudoLabelConfig, PseudoLabeled};
 use crate::thresholds::{self, AdaptiveThresholdConfig, Thresholds};
+use pi3det_eval::bootstrap::{self, ClassComparison};
 use pi3det_nn::augment::{AugmentConfig, RandomPlatformJitterConfig};
 use pi3det_nn::checkpoint::{self, TrainState};
 use pi3det_nn::config::{DetectorConfig, HeadConfig};
@@ -274,6 +275,12 @@ pub struct AdaptReport {
     pub source_only: Option<ApSummary>,
     pub source_only_vpp: Option<ApSummary>,
     pub adapted: Option<ApSummary>,
+    /// The adapted model − the PA model through VPP on the validation frames, per class, with a
+    /// 95 % interval from a paired bootstrap over the validation sequences (is the difference
+    /// resolved or within noise).
+    pub adapted_vs_pa_vpp: Vec<ClassComparison>,
+    /// The validation sequences those intervals draw from.
+    pub val_sequences: usize,
     pub pseudo_labels: usize,
     /// Each set of pseudo-labels: thresholds and positives per frame.
     pub label_rounds: Vec<LabelRound>,
@@ -355,6 +362,9 @@ fn latest_checkpoint(dir: &Path) -> Option<PathBuf> {
         .max_by_key(|(n, _)| *n)
         .map(|(_, p)| p)
 }
+
+/// Draws of the paired bootstrap behind `adapted_vs_pa_vpp`.
+const VAL_BOOTSTRAP_DRAWS: usize = 200;
 
 /// AP on `val`; the detections go to `out` (JSON lines, for `pi3det eval --breakdown`).
 pub fn evaluate(det: &Detector, prep: Arc<Preprocessor>, val: &Subset, out: &Path) -> Result<ApSummary> {
@@ -731,6 +741,17 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     if let Some(v) = val {
         on_event(AdaptEvent::Stage("evaluating the adapted model"));
         report.adapted = Some(evaluate(&det, Arc::new(target_prep(false)?), v, &out.join("val_adapted.jsonl"))?);
+        let pa_vpp = out.join("val_source_only_vpp.jsonl");
+        if report.source_only_vpp.is_some() && pa_vpp.is_file() {
+            let read = |p: &Path| pi3det_eval::Detections::read(p).map_err(NnError::from);
+            let (adapted, pa) = (read(&out.join("val_adapted.jsonl"))?, read(&pa_vpp)?);
+            let infos = v.infos()?;
+            let r = det_cfg.pillars.point_cloud_range;
+            let opts = eval::options(&det_cfg.classes, Some([r[0], r[1], r[3], r[4]]), None);
+            report.val_sequences = bootstrap::Groups::new(infos.clone()).len();
+            report.adapted_vs_pa_vpp =
+                bootstrap::compare(&infos, &adapted, &pa, &opts, VAL_BOOTSTRAP_DRAWS, 0).map_err(NnError::from)?;
+        }
     }
     report.vpp = vpp.as_ref().map(|v| v.counts());
     report.total_seconds = t0.elapsed().as_secs_f64();
@@ -834,6 +855,10 @@ pub fn markdown(r: &AdaptReport, cfg: &DetectorConfig) -> String {
             }
             s += "\n";
         }
+    }
+    if !r.adapted_vs_pa_vpp.is_empty() {
+        s += "\n";
+        s += &bootstrap::format_comparison(&r.adapted_vs_pa_vpp, "adapted", "PA through VPP", r.val_sequences);
     }
     if !r.pseudo_label_quality.is_empty() {
         s += "\nPseudo-labels (positives) against the target's ground truth:\n\n";

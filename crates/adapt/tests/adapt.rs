@@ -70,6 +70,7 @@ struct Data {
     root: std::path::PathBuf,
     source: Subset,
     target: Subset,
+    val: Subset,
 }
 
 fn data() -> Data {
@@ -89,7 +90,13 @@ fn data() -> Data {
     };
     pi3det_sim::export(&SimConfig::default(), &plans, &opts, &mut |_, _| {}).unwrap();
     let open = |p: &str, s: &str| Subset::all(open_split(&root.join("data").join(p).join(s), Some(s)).unwrap());
-    Data { source: open("vehicle", "train"), target: open("drone", "train"), root, _dir: dir }
+    Data {
+        source: open("vehicle", "train"),
+        target: open("drone", "train"),
+        val: open("drone", "val"),
+        root,
+        _dir: dir,
+    }
 }
 
 fn options(cfg: &AdaptConfig, d: &Data, out: &Path) -> AdaptOptions {
@@ -176,7 +183,21 @@ fn stages_run_and_resume_across_pa_ka_reproduces_an_uninterrupted_run() {
     let mut shared = cfg.clone();
     shared.ka.pa_weight = 0.5;
     let c = d.root.join("c");
-    pipeline::run(options(&shared, &d, &c), &mut |_| {}).unwrap();
+    // Run to the end with a validation split: the adapted model against the PA model through
+    // VPP, with an interval over the split's sequences, in the report and its markdown.
+    let mut o = options(&shared, &d, &c);
+    o.val = Some(d.val.clone());
+    o.stop_after = None;
+    let report = pipeline::run(o, &mut |_| {}).unwrap();
+    assert_eq!(report.val_sequences, 1);
+    assert!(!report.adapted_vs_pa_vpp.is_empty());
+    for r in &report.adapted_vs_pa_vpp {
+        let (a, p) = (report.adapted.as_ref().unwrap(), report.source_only_vpp.as_ref().unwrap());
+        let want = a.get(&r.class).unwrap().bev_r40 - p.get(&r.class).unwrap().bev_r40;
+        assert!((r.bev.diff - want).abs() < 1e-9 || (r.bev.diff.is_nan() && want.is_nan()), "{r:?}");
+    }
+    let md = std::fs::read_to_string(c.join("adapt.md")).unwrap();
+    assert!(md.contains("adapted − PA through VPP"), "{md}");
     let last = c.join(format!("ka/checkpoint_epoch_{}.safetensors", cfg.ka.epochs));
     let pa = weights(&c.join("pa/final.safetensors"));
     let blended = weights(&c.join("ka/final.safetensors"));

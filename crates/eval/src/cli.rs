@@ -6,6 +6,7 @@ use std::time::Instant;
 use pi3det_data::FrameInfo;
 use serde::Serialize;
 
+use crate::bootstrap::{compare, format_comparison, ClassComparison, Groups};
 use crate::breakdown::{breakdown, format_breakdown, Breakdown};
 use crate::classes::Overlaps;
 use crate::detections::Detections;
@@ -69,6 +70,14 @@ pub struct EvalArgs {
     /// Also write the JSON report to this file (`--output` is the old spelling).
     #[arg(long, value_name = "FILE", alias = "output")]
     pub out: Option<PathBuf>,
+    /// Detections to compare with (same formats as --det): per class, --det − --baseline with a
+    /// 95 % interval from a paired bootstrap over the ground truth's sequences, and whether the
+    /// ordering is resolved or within noise; with --json / --out it is the field "comparison".
+    #[arg(long, value_name = "DETECTIONS")]
+    pub baseline: Option<PathBuf>,
+    /// Bootstrap draws for --baseline.
+    #[arg(long, default_value_t = 200, value_name = "N")]
+    pub bootstrap: usize,
 }
 
 fn parse_overlap(spec: &str) -> Result<(String, Overlaps), EvalError> {
@@ -126,10 +135,26 @@ impl EvalArgs {
 
     /// Reads both inputs once, evaluates and, with `--breakdown`, computes the error breakdown.
     pub fn evaluate_with_breakdown(&self) -> Result<(EvalReport, Option<Breakdown>), EvalError> {
+        let (report, extra, _) = self.evaluate_all()?;
+        Ok((report, extra))
+    }
+
+    /// The report, the breakdown with `--breakdown` and the comparison with `--baseline`.
+    pub fn evaluate_all(&self) -> Result<(EvalReport, Option<Breakdown>, Option<Comparison>), EvalError> {
         let (infos, dets, opts) = self.read()?;
         let report = timed(|| evaluate(&infos, &dets, &opts))?;
         let extra = if self.breakdown { Some(breakdown(&infos, &dets, &opts)?) } else { None };
-        Ok((report, extra))
+        let comparison = match &self.baseline {
+            Some(path) => {
+                let base = Detections::read(path)?;
+                let t = Instant::now();
+                let classes = compare(&infos, &dets, &base, &opts, self.bootstrap, 0)?;
+                tracing::info!("compared with {} in {:.3} s", path.display(), t.elapsed().as_secs_f64());
+                Some(Comparison { baseline: path.clone(), sequences: Groups::new(infos.clone()).len(), classes })
+            }
+            None => None,
+        };
+        Ok((report, extra, comparison))
     }
 
     fn read(&self) -> Result<(Vec<FrameInfo>, Detections, EvalOptions), EvalError> {
@@ -156,42 +181,63 @@ fn timed(f: impl FnOnce() -> Result<EvalReport, EvalError>) -> Result<EvalReport
     Ok(report)
 }
 
-/// The `--json` document: the report's fields, plus `breakdown` with `--breakdown`.
+/// `--baseline`'s result: the detections against the baseline's, per class.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Comparison {
+    pub baseline: PathBuf,
+    /// The ground truth's sequences, the bootstrap's unit.
+    pub sequences: usize,
+    pub classes: Vec<ClassComparison>,
+}
+
+/// The `--json` document: the report's fields, plus `breakdown` with `--breakdown` and
+/// `comparison` with `--baseline`.
 #[derive(Serialize)]
 struct JsonOutput<'a> {
     #[serde(flatten)]
     report: &'a EvalReport,
     #[serde(skip_serializing_if = "Option::is_none")]
     breakdown: Option<&'a Breakdown>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    comparison: Option<&'a Comparison>,
 }
 
-/// The text `pi3det eval` prints: the report, then the breakdown when there is one.
-pub fn format_output(report: &EvalReport, breakdown: Option<&Breakdown>) -> String {
+/// The text `pi3det eval` prints: the report, then the breakdown and the comparison when there
+/// are.
+pub fn format_output(report: &EvalReport, breakdown: Option<&Breakdown>, comparison: Option<&Comparison>) -> String {
     let mut out = format_report(report);
     if let Some(b) = breakdown {
         out.push('\n');
         out.push_str(&format_breakdown(b));
     }
+    if let Some(c) = comparison {
+        out.push('\n');
+        out.push_str(&format_comparison(&c.classes, "det", "baseline", c.sequences));
+    }
     out
 }
 
 /// The JSON `pi3det eval --json` prints (and `--out` writes).
-pub fn json_output(report: &EvalReport, breakdown: Option<&Breakdown>) -> Result<String, EvalError> {
-    serde_json::to_string_pretty(&JsonOutput { report, breakdown })
+pub fn json_output(
+    report: &EvalReport,
+    breakdown: Option<&Breakdown>,
+    comparison: Option<&Comparison>,
+) -> Result<String, EvalError> {
+    serde_json::to_string_pretty(&JsonOutput { report, breakdown, comparison })
         .map_err(|e| EvalError::Input(format!("JSON output: {e}")))
 }
 
 /// Runs `pi3det eval`: prints the text report (or JSON with `--json`) to stdout.
 pub fn run(args: &EvalArgs) -> Result<(), EvalError> {
-    let (report, breakdown) = args.evaluate_with_breakdown()?;
-    let json = || json_output(&report, breakdown.as_ref());
+    let (report, breakdown, comparison) = args.evaluate_all()?;
+    let json = || json_output(&report, breakdown.as_ref(), comparison.as_ref());
     if let Some(path) = &args.out {
         std::fs::write(path, json()? + "\n").map_err(|e| EvalError::io(path, e))?;
     }
     if args.json {
         println!("{}", json()?);
     } else {
-        print!("{}", format_output(&report, breakdown.as_ref()));
+        print!("{}", format_output(&report, breakdown.as_ref(), comparison.as_ref()));
     }
     Ok(())
 }
@@ -278,8 +324,8 @@ mod tests {
         assert_eq!((car.by_points[0].result.num_gt, car.by_points[2].result.num_gt, car.gt_without_points), (3, 3, 0));
         assert_eq!((car.by_points[0].result.recall_bev, car.by_points[2].result.recall_bev), (Some(0.0), Some(1.0)));
         assert_eq!((car.misplaced.missed_3d, car.misplaced.misplaced_3d), (6, 3));
-        assert!(format_output(&report, Some(&b)).contains("Error breakdown"));
-        let j: serde_json::Value = serde_json::from_str(&json_output(&report, Some(&b)).unwrap()).unwrap();
+        assert!(format_output(&report, Some(&b), None).contains("Error breakdown"));
+        let j: serde_json::Value = serde_json::from_str(&json_output(&report, Some(&b), None).unwrap()).unwrap();
         assert!(j["overall"]["classes"].is_array());
         assert_eq!(j["breakdown"]["classes"][0]["by_distance"][2]["ap_bev_r40_pct"], serde_json::Value::Null);
         let z = j["breakdown"]["classes"][0]["localisation"]["errors"]["z_m"]["median_abs"].as_f64().unwrap();
@@ -288,8 +334,25 @@ mod tests {
         let args = Cli::try_parse_from(["x", "--gt", g, "--det", d]).unwrap().eval;
         let (report, b) = args.evaluate_with_breakdown().unwrap();
         assert!(b.is_none());
-        let j: serde_json::Value = serde_json::from_str(&json_output(&report, None).unwrap()).unwrap();
+        let j: serde_json::Value = serde_json::from_str(&json_output(&report, None, None).unwrap()).unwrap();
         assert!(j.get("breakdown").is_none());
         assert_eq!(serde_json::from_value::<EvalReport>(j).unwrap(), report);
+        // --baseline: the detections against themselves differ by exactly 0 (not resolved), in
+        // the text and in the JSON; a baseline that is not there is an error naming it.
+        let args =
+            Cli::try_parse_from(["x", "--gt", g, "--det", d, "--baseline", d, "--bootstrap", "20"]).unwrap().eval;
+        let (report, _, c) = args.evaluate_all().unwrap();
+        let c = c.expect("--baseline compares");
+        let car = &c.classes[0];
+        assert_eq!((car.class.as_str(), car.bev.diff, car.bev.resamples, car.bev.resolved()), ("Car", 0.0, 20, false));
+        assert_eq!(c.sequences, 3, "frames without a sequence stand alone");
+        assert!(format_output(&report, None, Some(&c)).contains("det − baseline"));
+        let j: serde_json::Value = serde_json::from_str(&json_output(&report, None, Some(&c)).unwrap()).unwrap();
+        assert_eq!(j["comparison"]["classes"][0]["class"], "Car");
+        let missing = dir.path().join("missing.jsonl");
+        let args =
+            Cli::try_parse_from(["x", "--gt", g, "--det", d, "--baseline", missing.to_str().unwrap()]).unwrap().eval;
+        let e = args.evaluate_all().unwrap_err().to_string();
+        assert!(e.contains("missing.jsonl"), "{e}");
     }
 }

@@ -9,6 +9,8 @@
 //!   by points per box, found-but-misplaced misses, localisation errors) as a [`Breakdown`]
 //!   (serde); [`format_breakdown`] prints it; module [`mod@breakdown`] says how each figure is
 //!   made.
+//! * [`bootstrap::compare`]: one detection set against another on the same split, per class,
+//!   with a paired bootstrap interval over sequences (within noise or resolved).
 //! * [`evaluate_kitti`]: the protocol itself on frames already in the reference's camera-frame
 //!   form ([`KittiFrame`]).
 //!
@@ -23,6 +25,7 @@
 
 pub mod anno;
 pub mod ap;
+pub mod bootstrap;
 pub mod breakdown;
 pub mod classes;
 mod convert;

@@ -2,140 +2,19 @@
 //! a paired bootstrap over validation sequences (the sequence, not the frame, is the unit: the
 //! frames of one sequence share their scene), averaged over the suite's seeds.
 //!
-//! A draw picks, per seed, as many sequences as the validation split has, with replacement; the
-//! row and source-only are evaluated on the same draw (paired), and AP is recomputed on the
-//! drawn frames, since AP does not add over sequences. The interval is the 2.5 / 97.5 %
-//! percentile of the seed-mean differences; an ordering is *resolved* when it excludes 0.
+//! A draw picks, per seed, as many sequences as the validation split has, with replacement
+//! ([`pi3det_eval::bootstrap`]); the row and source-only are evaluated on the same draw, and the
+//! interval is the 2.5 / 97.5 % percentile of the seed-mean differences.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use pi3det_data::FrameInfo;
-use pi3det_eval::{Detection, Detections, EvalOptions};
-use rand::{Rng, SeedableRng};
-use serde::Serialize;
+use pi3det_eval::Detections;
 
 use super::suite::{Cell, MethodKind, Suite};
 use super::table::{CellResult, Status};
 
-/// A difference (row − reference) and its bootstrap interval.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct Interval {
-    /// On the full validation splits.
-    pub diff: f64,
-    pub lo: f64,
-    pub hi: f64,
-    pub resamples: usize,
-}
-
-impl Interval {
-    /// The interval excludes 0: the sign of the difference is resolved.
-    pub fn resolved(&self) -> bool {
-        self.lo > 0.0 || self.hi < 0.0
-    }
-}
-
-/// The 2.5 / 97.5 % percentiles (linear between order statistics).
-fn percentiles_95(samples: &mut [f64]) -> (f64, f64) {
-    samples.sort_by(f64::total_cmp);
-    let q = |p: f64| {
-        let x = p * (samples.len() - 1) as f64;
-        let (i, f) = (x.floor() as usize, x.fract());
-        let j = (i + 1).min(samples.len() - 1);
-        samples[i] * (1.0 - f) + samples[j] * f
-    };
-    (q(0.025), q(0.975))
-}
-
-/// The draws of a paired bootstrap over groups: `groups[u]` is the number of groups (sequences)
-/// of unit `u` (a seed); each draw holds, per unit, as many group indices drawn with replacement.
-/// The first draw is the identity (the full splits).
-pub fn draws(groups: &[usize], resamples: usize, seed: u64) -> Vec<Vec<Vec<usize>>> {
-    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-    let mut out = vec![groups.iter().map(|&n| (0..n).collect()).collect()];
-    for _ in 0..resamples {
-        out.push(groups.iter().map(|&n| (0..n).map(|_| rng.random_range(0..n)).collect()).collect());
-    }
-    out
-}
-
-/// The interval of `diffs`, one per draw of [`draws`] (the first on the full splits); draws
-/// whose difference is not finite (no ground truth drawn) are left out.
-pub fn interval(diffs: &[f64]) -> Interval {
-    let full = diffs.first().copied().unwrap_or(f64::NAN);
-    let mut samples: Vec<f64> = diffs.iter().skip(1).copied().filter(|d| d.is_finite()).collect();
-    if samples.is_empty() {
-        return Interval { diff: full, lo: f64::NAN, hi: f64::NAN, resamples: 0 };
-    }
-    let (lo, hi) = percentiles_95(&mut samples);
-    Interval { diff: full, lo, hi, resamples: samples.len() }
-}
-
-/// [`draws`] and [`interval`] with `diff` computing the difference on each draw (the tests'
-/// shorthand; the comparison table shares one set of draws between rows).
-#[cfg(test)]
-pub fn paired_bootstrap(
-    groups: &[usize],
-    resamples: usize,
-    seed: u64,
-    diff: &mut dyn FnMut(&[Vec<usize>]) -> Result<f64>,
-) -> Result<Interval> {
-    let diffs = draws(groups, resamples, seed).iter().map(|d| diff(d)).collect::<Result<Vec<f64>>>()?;
-    Ok(interval(&diffs))
-}
-
-/// A validation split's ground truth by sequence (frames without a sequence each stand alone).
-pub struct Groups {
-    pub frames: Vec<Vec<FrameInfo>>,
-}
-
-impl Groups {
-    pub fn new(infos: Vec<FrameInfo>) -> Self {
-        let mut by: BTreeMap<String, Vec<FrameInfo>> = BTreeMap::new();
-        for i in infos {
-            let key = i.sequence.clone().unwrap_or_else(|| i.id.clone());
-            by.entry(key).or_default().push(i);
-        }
-        Self { frames: by.into_values().collect() }
-    }
-
-    pub fn len(&self) -> usize {
-        self.frames.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.frames.is_empty()
-    }
-
-    /// The drawn groups' frames and `dets` on them, each copy of a frame under its own id.
-    fn draw(&self, draw: &[usize], dets: &Detections) -> (Vec<FrameInfo>, Detections) {
-        let mut gt = Vec::new();
-        let mut out = Detections::default();
-        for (k, &g) in draw.iter().enumerate() {
-            for info in &self.frames[g] {
-                let id = format!("{}#{k}", info.id);
-                let d: Vec<Detection> = dets.frames.get(&info.id).cloned().unwrap_or_default();
-                out.frames.insert(id.clone(), d);
-                gt.push(FrameInfo { id, ..info.clone() });
-            }
-        }
-        (gt, out)
-    }
-
-    /// `metric` of `dets` on the drawn groups.
-    pub fn metric(
-        &self,
-        draw: &[usize],
-        dets: &Detections,
-        opts: &EvalOptions,
-        metric: &dyn Fn(&pi3det_eval::EvalReport) -> f64,
-    ) -> Result<f64> {
-        let (gt, d) = self.draw(draw, dets);
-        let report = pi3det_eval::evaluate(&gt, &d, opts).context("evaluating a bootstrap draw")?;
-        Ok(metric(&report))
-    }
-}
+pub use pi3det_eval::bootstrap::{draws, interval, Groups, Interval};
 
 /// One seed's run of a suite: its output folder and its cells' results.
 pub struct SeedRun<'a> {
@@ -282,44 +161,8 @@ pub fn mean_spread(values: &[f64]) -> (f64, f64) {
 mod tests {
     use super::*;
 
-    /// Noise of up to ±2 whose mean over the 24 sequences is exactly 0 (pairs ±e).
-    fn zero_mean_noise(rng: &mut rand::rngs::StdRng) -> Vec<f64> {
-        (0..12)
-            .flat_map(|_| {
-                let e = rng.random_range(0.0..2.0);
-                [e, -e]
-            })
-            .collect()
-    }
-
-    /// A synthetic table: per sequence, row B scores its row A + 5 with noise; the difference
-    /// over all sequences is exactly 5.
     #[test]
-    fn a_known_difference_lies_in_its_interval_and_is_resolved() {
-        let mut rng = rand::rngs::StdRng::seed_from_u64(3);
-        let a: Vec<f64> = (0..24).map(|_| rng.random_range(30.0..70.0)).collect();
-        let b: Vec<f64> = a.iter().zip(zero_mean_noise(&mut rng)).map(|(x, e)| x + 5.0 + e).collect();
-        let mean = |v: &[f64], d: &[usize]| d.iter().map(|&i| v[i]).sum::<f64>() / d.len() as f64;
-        let i = paired_bootstrap(&[24], 500, 0, &mut |d| Ok(mean(&b, &d[0]) - mean(&a, &d[0]))).unwrap();
-        assert!((i.diff - 5.0).abs() < 1e-9 && i.lo < 5.0 && 5.0 < i.hi && i.resolved(), "{i:?}");
-        assert!(i.hi - i.lo < 2.0, "paired: the sequences' own spread cancels: {i:?}");
-        // No difference: the interval holds 0 and the ordering is not resolved.
-        let c: Vec<f64> = a.iter().zip(zero_mean_noise(&mut rng)).map(|(x, e)| x + e).collect();
-        let j = paired_bootstrap(&[24], 500, 0, &mut |d| Ok(mean(&c, &d[0]) - mean(&a, &d[0]))).unwrap();
-        assert!(j.lo < 0.0 && 0.0 < j.hi && !j.resolved(), "{j:?}");
-        // Two seeds: the seed-mean difference.
-        let k = paired_bootstrap(&[24, 24], 200, 0, &mut |d| {
-            Ok((mean(&b, &d[0]) - mean(&a, &d[0]) + mean(&c, &d[1]) - mean(&a, &d[1])) / 2.0)
-        })
-        .unwrap();
-        assert!((k.diff - 2.5).abs() < 1e-9 && k.lo < 2.5 && 2.5 < k.hi, "{k:?}");
-    }
-
-    #[test]
-    fn percentiles_and_spread() {
-        let mut v: Vec<f64> = (0..=100).map(f64::from).collect();
-        let (lo, hi) = percentiles_95(&mut v);
-        assert!((lo - 2.5).abs() < 1e-9 && (hi - 97.5).abs() < 1e-9);
+    fn spread_is_half_the_range() {
         assert_eq!(mean_spread(&[70.0, 72.0]), (71.0, 1.0));
     }
 }
