@@ -49,6 +49,10 @@ pub struct AdaptConfig {
     pub detector: DetectorConfig,
     /// Virtual Platform Pose for target frames (absent: off).
     pub vpp: Option<VppConfig>,
+    /// Without VPP, the z shift of the target's frames (absent: the detector's `shift_z`, as on the
+    /// source) — e.g. one dataset-wide match of sensor heights, as the benchmark's baselines get.
+    /// VPP levels each frame itself, so the two are refused together.
+    pub target_shift_z: Option<f64>,
     pub pseudo_labels: PseudoLabelConfig,
     /// Per-class positive thresholds when `positive_score` gives too few positives.
     pub adaptive_thresholds: AdaptiveThresholdConfig,
@@ -70,6 +74,7 @@ impl Default for AdaptConfig {
             name: "pi3det_net".into(),
             detector,
             vpp: Some(VppConfig::default()),
+            target_shift_z: None,
             pseudo_labels: PseudoLabelConfig::default(),
             adaptive_thresholds: AdaptiveThresholdConfig::default(),
             ka: KaConfig::default(),
@@ -128,6 +133,18 @@ impl AdaptConfig {
         self.detector.validate()?;
         if let Some(v) = &self.vpp {
             v.validate()?;
+        }
+        match self.target_shift_z {
+            Some(_) if self.vpp.is_some() => {
+                return Err(NnError::config(
+                    "target_shift_z",
+                    "target_shift_z is the target's shift without VPP; VPP levels each frame itself (drop one of them)",
+                ))
+            }
+            Some(z) if !z.is_finite() => {
+                return Err(NnError::config("target_shift_z", format!("target_shift_z must be finite, got {z}")))
+            }
+            _ => {}
         }
         self.pseudo_labels.validate()?;
         self.adaptive_thresholds.validate()?;
@@ -368,11 +385,26 @@ const VAL_BOOTSTRAP_DRAWS: usize = 200;
 
 /// AP on `val`; the detections go to `out` (JSON lines, for `pi3det eval --breakdown`).
 pub fn evaluate(det: &Detector, prep: Arc<Preprocessor>, val: &Subset, out: &Path) -> Result<ApSummary> {
+    Ok(evaluate_keeping(det, prep, val, out)?.0)
+}
+
+/// [`evaluate`], keeping the detections for a comparison.
+fn evaluate_keeping(
+    det: &Detector,
+    prep: Arc<Preprocessor>,
+    val: &Subset,
+    out: &Path,
+) -> Result<(ApSummary, Vec<FrameDetections>)> {
     let (frames, _) = detect::detect_with(det, prep, val, 4, true, &mut |_, _| {})?;
     detect::write_jsonl(out, &frames)?;
-    let r = det.cfg().pillars.point_cloud_range;
-    let opts = eval::options(&det.cfg().classes, Some([r[0], r[1], r[3], r[4]]), None);
-    Ok(eval::evaluate(&frames, &opts)?.1)
+    let opts = val_options(det.cfg());
+    Ok((eval::evaluate(&frames, &opts)?.1, frames))
+}
+
+/// Evaluation options of validation: the detector's classes inside its BEV range.
+fn val_options(cfg: &DetectorConfig) -> pi3det_eval::EvalOptions {
+    let r = cfg.pillars.point_cloud_range;
+    eval::options(&cfg.classes, Some([r[0], r[1], r[3], r[4]]), None)
 }
 
 /// Runs PA → pseudo-labels → KA and the evaluations; `on_event` sees progress.
@@ -478,6 +510,14 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
 
     // The target's frame transform.
     let plain: Arc<dyn FrameTransform> = Arc::new(ShiftZ(det_cfg.shift_z));
+    // Without VPP the target's frames take one shift: the source's unless the config gives theirs.
+    let target_plain: Arc<dyn FrameTransform> = match cfg.target_shift_z {
+        Some(z) => {
+            on_event(AdaptEvent::Message(format!("target frames without VPP: shift_z {z:.2} m")));
+            Arc::new(ShiftZ(z))
+        }
+        None => plain.clone(),
+    };
     let vpp = match &cfg.vpp {
         Some(v) => {
             let h = match v.source_height_m {
@@ -512,7 +552,7 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     det.prep = Arc::new(Preprocessor::new(&DetectorConfig { trained_on: Some(recorded), ..det_cfg.clone() })?);
     let target_transform: Arc<dyn FrameTransform> = match &vpp {
         Some(v) => v.clone(),
-        None => plain.clone(),
+        None => target_plain.clone(),
     };
     let target_cfg = cfg.target_detector_config();
     let target_prep = |ignore: bool| -> Result<Preprocessor> {
@@ -521,15 +561,22 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     };
     let plain_prep = Arc::new(Preprocessor::new(det_cfg)?);
 
+    // The PA model's detections through VPP on `val`, kept for the comparison with the adapted model.
+    let mut pa_vpp_val = None;
     if let Some(v) = val {
         on_event(AdaptEvent::Stage("evaluating the source-only model"));
         report.source_only = match &opts.source_only {
             Some(s) => Some(s.clone()),
-            None => Some(evaluate(&det, plain_prep.clone(), v, &out.join("val_source_only.jsonl"))?),
+            None => {
+                let prep = Arc::new(Preprocessor::new(det_cfg)?.with_frame_transform(target_plain.clone()));
+                Some(evaluate(&det, prep, v, &out.join("val_source_only.jsonl"))?)
+            }
         };
         if vpp.is_some() && opts.vpp_diagnostics {
             let o = out.join("val_source_only_vpp.jsonl");
-            report.source_only_vpp = Some(evaluate(&det, Arc::new(target_prep(false)?), v, &o)?);
+            let (ap, frames) = evaluate_keeping(&det, Arc::new(target_prep(false)?), v, &o)?;
+            report.source_only_vpp = Some(ap);
+            pa_vpp_val = Some(frames);
         }
     }
 
@@ -740,17 +787,15 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
     }
     if let Some(v) = val {
         on_event(AdaptEvent::Stage("evaluating the adapted model"));
-        report.adapted = Some(evaluate(&det, Arc::new(target_prep(false)?), v, &out.join("val_adapted.jsonl"))?);
-        let pa_vpp = out.join("val_source_only_vpp.jsonl");
-        if report.source_only_vpp.is_some() && pa_vpp.is_file() {
-            let read = |p: &Path| pi3det_eval::Detections::read(p).map_err(NnError::from);
-            let (adapted, pa) = (read(&out.join("val_adapted.jsonl"))?, read(&pa_vpp)?);
-            let infos = v.infos()?;
-            let r = det_cfg.pillars.point_cloud_range;
-            let opts = eval::options(&det_cfg.classes, Some([r[0], r[1], r[3], r[4]]), None);
-            report.val_sequences = bootstrap::Groups::new(infos.clone()).len();
-            report.adapted_vs_pa_vpp =
-                bootstrap::compare(&infos, &adapted, &pa, &opts, VAL_BOOTSTRAP_DRAWS, 0).map_err(NnError::from)?;
+        let (ap, adapted) = evaluate_keeping(&det, Arc::new(target_prep(false)?), v, &out.join("val_adapted.jsonl"))?;
+        report.adapted = Some(ap);
+        if let Some(pa) = &pa_vpp_val {
+            let infos: Vec<_> = adapted.iter().map(|f| f.info.clone()).collect();
+            let (a, b) = (eval::detections(&adapted)?, eval::detections(pa)?);
+            let c = bootstrap::compare(&infos, &a, &b, &val_options(det_cfg), VAL_BOOTSTRAP_DRAWS, 0)
+                .map_err(NnError::from)?;
+            report.val_sequences = c.sequences;
+            report.adapted_vs_pa_vpp = c.classes;
         }
     }
     report.vpp = vpp.as_ref().map(|v| v.counts());

@@ -74,5 +74,13 @@ fn a_misspelt_key_or_a_bad_value_names_the_file_and_the_override() {
     center.detector.head = pi3det_nn::config::HeadConfig::Center(Default::default());
     let e = center.validate().unwrap_err().to_string();
     assert!(e.contains("teacher_scores") && e.contains("anchor head"), "{e}");
+    // The target's own shift is for runs without VPP: with it, or not finite, refused.
+    let e = AdaptConfig::from_file_with(&path, &[set("target_shift_z=-12.5")]).unwrap_err().to_string();
+    assert!(e.contains("target_shift_z") && e.contains("VPP"), "{e}");
+    let mut no_vpp = AdaptConfig::from_file(&path).unwrap().without(&[pi3det_adapt::pipeline::Component::Vpp]);
+    no_vpp.target_shift_z = Some(-12.5);
+    no_vpp.validate().unwrap();
+    no_vpp.target_shift_z = Some(f64::NAN);
+    assert!(no_vpp.validate().unwrap_err().to_string().contains("finite"));
     assert_eq!(std::fs::read_to_string(&path).unwrap(), before, "the file is never written");
 }

@@ -8,6 +8,7 @@ mod common;
 use std::path::Path;
 
 use common::{aps, args, write_suite, TORCH_RNG};
+use pi3det_cli_torch::benchmark::stats;
 use pi3det_cli_torch::benchmark::suite::Suite;
 use pi3det_cli_torch::benchmark::table::Status;
 use pi3det_cli_torch::benchmark::{self, BenchmarkArgs};
@@ -184,6 +185,12 @@ fn shipped_suites_parse() {
     assert_eq!(labels.len(), 8);
     assert_eq!(labels[1], "Pi3DET-Net (KA alone)");
     assert_eq!(labels[6], "Pi3DET-Net (RPJ + VPP + PFA + GTD)");
+    // Each component measured against the nearest row without it: RPJ and VPP alone on KA alone,
+    // RPJ on VPP (the row above has RPJ but not VPP), then PFA and GTD cumulatively.
+    let steps: Vec<(String, usize, usize)> =
+        stats::component_steps(&ablation.methods).into_iter().map(|s| (s.added, s.with, s.without)).collect();
+    let want = [("RPJ", 2, 1), ("VPP", 3, 1), ("RPJ", 4, 3), ("PFA", 5, 4), ("GTD", 6, 5)];
+    assert_eq!(steps, want.map(|(a, w, o)| (a.to_string(), w, o)));
     let paper = Suite::from_file(&dir.join("paper.toml")).unwrap();
     assert_eq!((paper.tasks.len(), paper.methods.len()), (8, 11));
     assert_eq!(paper.cells().len(), 88);
@@ -231,8 +238,8 @@ fn an_ablation_row_runs_pi3det_net_with_its_components_only() {
     let _turn = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tempfile::tempdir().unwrap();
     let suite = write_suite(dir.path(), &["source_only"], 1);
-    let text =
-        std::fs::read_to_string(&suite).unwrap() + "[[methods]]\nkind = \"pi3det_net\"\ncomponents = [\"vpp\"]\n";
+    let text = std::fs::read_to_string(&suite).unwrap()
+        + "[[methods]]\nkind = \"pi3det_net\"\ncomponents = [\"vpp\"]\n[[methods]]\nkind = \"pi3det_net\"\ncomponents = []\n";
     std::fs::write(&suite, &text).unwrap();
     let out = dir.path().join("out");
     let results = benchmark::run(&args(&suite, &out)).unwrap();
@@ -240,6 +247,17 @@ fn an_ablation_row_runs_pi3det_net_with_its_components_only() {
     assert_eq!(row.status, Status::Done, "{:?}", row.error);
     let log = std::fs::read_to_string(out.join("cells/v2q__pi3det_net_vpp__tiny/log.txt")).unwrap();
     assert!(log.contains("Pi3DET-Net components: [Vpp]"), "{log}");
+    // VPP alone leaves PA as source-only's training: the row reuses that model.
+    assert!(
+        log.contains("PA without RPJ, PFA and GTD: the source-only model") && !log.contains("training pa_"),
+        "{log}"
+    );
+    // KA alone: the target through the suite's one height shift, as source-only sees it.
+    let log = std::fs::read_to_string(out.join("cells/v2q__pi3det_net_ka_alone__tiny/log.txt")).unwrap();
+    let shift = |l: &str| l.split("shift_z ").nth(1).map(|r| r.split(' ').next().unwrap().to_string());
+    let suite_shift = log.lines().find(|l| l.contains("target frames: shift_z")).and_then(shift);
+    let ka_shift = log.lines().find(|l| l.contains("target frames without VPP")).and_then(shift);
+    assert!(suite_shift.is_some() && suite_shift == ka_shift, "{log}");
     // Components belong to Pi3DET-Net.
     let bad = text.replace("kind = \"source_only\"", "kind = \"source_only\"\ncomponents = []");
     let e = format!("{:#}", Suite::from_toml_str(&bad, &suite).unwrap_err());

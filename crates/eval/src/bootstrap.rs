@@ -180,6 +180,14 @@ pub struct ClassComparison {
     pub d3: Interval,
 }
 
+/// [`compare`]'s result: the classes, and how many sequences the bootstrap drew from.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Comparison {
+    /// The ground truth's sequences, the bootstrap's unit.
+    pub sequences: usize,
+    pub classes: Vec<ClassComparison>,
+}
+
 /// `det − baseline` per class (strict BEV and 3D AP_R40, moderate) with a paired bootstrap of
 /// `resamples` draws of `gt`'s sequences (seeded: the same draws for the same split).
 pub fn compare(
@@ -189,7 +197,7 @@ pub fn compare(
     opts: &EvalOptions,
     resamples: usize,
     seed: u64,
-) -> Result<Vec<ClassComparison>, EvalError> {
+) -> Result<Comparison, EvalError> {
     let opts = EvalOptions { per_platform: false, per_sequence: false, ..opts.clone() };
     let groups = Groups::new(gt.to_vec());
     if groups.is_empty() {
@@ -226,15 +234,15 @@ pub fn compare(
             d3: interval(&diffs(1)),
         });
     }
-    Ok(out)
+    Ok(Comparison { sequences: groups.len(), classes: out })
 }
 
 /// The comparison as a markdown table, `det` and `baseline` naming the two sets.
-pub fn format_comparison(rows: &[ClassComparison], det: &str, baseline: &str, groups: usize) -> String {
+pub fn format_comparison(rows: &[ClassComparison], det: &str, baseline: &str, sequences: usize) -> String {
     let resamples = rows.iter().map(|r| r.bev.resamples).max().unwrap_or(0);
     let mut s = format!(
         "{det} − {baseline}: AP_R40 (moderate, strict overlap) and a 95 % interval from {resamples} paired draws of \
-         the {groups} validation sequences\n\n| class | num_gt | BEV {det} / {baseline} | BEV difference | 3D {det} / {baseline} | 3D difference |\n| --- | ---: | --- | --- | --- | --- |\n"
+         the {sequences} validation sequences\n\n| class | num_gt | BEV {det} / {baseline} | BEV difference | 3D {det} / {baseline} | 3D difference |\n| --- | ---: | --- | --- | --- | --- |\n"
     );
     for r in rows {
         s += &format!(
@@ -337,14 +345,15 @@ mod tests {
             }
         }
         let opts = EvalOptions { classes: vec!["Car".into()], ..EvalOptions::default() };
-        let rows = compare(&gt, &half, &good, &opts, 100, 0).unwrap();
-        assert_eq!(rows.len(), 1);
+        let c = compare(&gt, &half, &good, &opts, 100, 0).unwrap();
+        let rows = c.classes;
+        assert_eq!((rows.len(), c.sequences), (1, 10));
         let r = &rows[0];
         assert_eq!((r.class.as_str(), r.num_gt), ("Car", 40));
         assert!(r.det[0] < r.baseline[0] && r.baseline[0] > 95.0, "{r:?}");
         assert!(r.bev.diff < -20.0 && r.bev.resolved() && r.bev.hi < 0.0, "{r:?}");
         assert_eq!(r.bev.resamples, 100);
-        let same = compare(&gt, &good, &good, &opts, 50, 0).unwrap();
+        let same = compare(&gt, &good, &good, &opts, 50, 0).unwrap().classes;
         assert_eq!((same[0].bev.lo, same[0].bev.hi, same[0].bev.resolved()), (0.0, 0.0, false));
         let table = format_comparison(&rows, "half", "good", 10);
         assert!(table.contains("| Car @0.70 | 40 |") && table.contains("resolved"), "{table}");

@@ -6,7 +6,7 @@ use std::time::Instant;
 use pi3det_data::FrameInfo;
 use serde::Serialize;
 
-use crate::bootstrap::{compare, format_comparison, ClassComparison, Groups};
+use crate::bootstrap::{compare, format_comparison, ClassComparison};
 use crate::breakdown::{breakdown, format_breakdown, Breakdown};
 use crate::classes::Overlaps;
 use crate::detections::Detections;
@@ -148,9 +148,9 @@ impl EvalArgs {
             Some(path) => {
                 let base = Detections::read(path)?;
                 let t = Instant::now();
-                let classes = compare(&infos, &dets, &base, &opts, self.bootstrap, 0)?;
+                let c = compare(&infos, &dets, &base, &opts, self.bootstrap, 0)?;
                 tracing::info!("compared with {} in {:.3} s", path.display(), t.elapsed().as_secs_f64());
-                Some(Comparison { baseline: path.clone(), sequences: Groups::new(infos.clone()).len(), classes })
+                Some(Comparison { baseline: path.clone(), sequences: c.sequences, classes: c.classes })
             }
             None => None,
         };

@@ -107,10 +107,14 @@ pub fn keep_camera_view(frames: &mut [FrameDetections]) -> usize {
     dropped
 }
 
+/// The detections of `frames` in the evaluator's form.
+pub fn detections(frames: &[FrameDetections]) -> Result<Detections> {
+    Detections::from_objects(frames.iter().map(|f| (f.info.id.clone(), f.objects.clone()))).map_err(NnError::from)
+}
+
 /// Evaluates detections against their frames' ground truth.
 pub fn evaluate(frames: &[FrameDetections], opts: &EvalOptions) -> Result<(EvalReport, ApSummary)> {
-    let dets = Detections::from_objects(frames.iter().map(|f| (f.info.id.clone(), f.objects.clone())))
-        .map_err(NnError::from)?;
+    let dets = detections(frames)?;
     let gt: Vec<pi3det_data::FrameInfo> = frames.iter().map(|f| f.info.clone()).collect();
     let report = pi3det_eval::evaluate(&gt, &dets, opts).map_err(NnError::from)?;
     let summary = summarize(&report);
@@ -120,8 +124,7 @@ pub fn evaluate(frames: &[FrameDetections], opts: &EvalOptions) -> Result<(EvalR
 /// The error breakdown (AP and recall by distance and points per box, found-but-misplaced share,
 /// localisation errors) of detections against their frames' ground truth.
 pub fn breakdown(frames: &[FrameDetections], opts: &EvalOptions) -> Result<Breakdown> {
-    let dets = Detections::from_objects(frames.iter().map(|f| (f.info.id.clone(), f.objects.clone())))
-        .map_err(NnError::from)?;
+    let dets = detections(frames)?;
     let gt: Vec<pi3det_data::FrameInfo> = frames.iter().map(|f| f.info.clone()).collect();
     pi3det_eval::breakdown(&gt, &dets, opts).map_err(NnError::from)
 }

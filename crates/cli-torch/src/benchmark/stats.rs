@@ -11,8 +11,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use pi3det_eval::Detections;
 
-use super::suite::{Cell, MethodKind, Suite};
+use super::suite::{Cell, MethodKind, MethodSpec, Suite};
 use super::table::{CellResult, Status};
+use pi3det_adapt::pipeline::Component;
 
 pub use pi3det_eval::bootstrap::{draws, interval, Groups, Interval};
 
@@ -104,7 +105,12 @@ pub fn comparison(runs: &[SeedRun<'_>], resamples: usize) -> Result<String> {
                     Ok(means)
                 })())
             };
-            let mut reference: Option<Option<Result<Vec<f64>>>> = None;
+            // Each method's seed-mean metric per draw, computed once (source-only and the rows that
+            // components are measured against are needed more than once).
+            let mut memo: Vec<Option<Option<OnDraws>>> = vec![None; suite.methods.len()];
+            let mut on_draws_once = |mi: usize| -> Option<OnDraws> {
+                memo[mi].get_or_insert_with(|| on_draws(mi).map(|r| r.map_err(|e| format!("{e:#}")))).clone()
+            };
             for (mi, m) in suite.methods.iter().enumerate() {
                 let cells: Vec<Option<(CellResult, PathBuf)>> = runs.iter().map(|run| cell(run, mi)).collect();
                 let values: Vec<f64> = cells
@@ -124,27 +130,79 @@ pub fn comparison(runs: &[SeedRun<'_>], resamples: usize) -> Result<String> {
                 let spread = if values.len() > 1 { format!(" ± {spread:.1}") } else { String::new() };
                 let mut row = format!("| {} | {} | {mean:.1}{spread} | {num_gt} |", m.label(), per_seed.join(" / "));
                 let compared = match source {
-                    Some(si) if si != mi && resamples > 0 => {
-                        let reference = reference.get_or_insert_with(|| on_draws(si));
-                        match (reference.as_ref(), on_draws(mi).as_ref()) {
-                            (Some(Ok(r)), Some(Ok(v))) => {
-                                let diffs: Vec<f64> = v.iter().zip(r).map(|(a, b)| a - b).collect();
-                                let i = interval(&diffs);
-                                let mark = if i.resolved() { "✓" } else { "~" };
-                                format!(" {:+.1} | [{:+.1}, {:+.1}] | {mark} |\n", i.diff, i.lo, i.hi)
-                            }
-                            (Some(Err(e)), _) | (_, Some(Err(e))) => format!(" – | no interval: {e:#} | |\n"),
-                            _ => " – | – | |\n".to_string(),
-                        }
-                    }
-                    _ => " – | – | |\n".to_string(),
+                    Some(si) if si != mi && resamples > 0 => difference_cells(on_draws_once(mi), on_draws_once(si)),
+                    _ => " – | – | |".to_string(),
                 };
                 row += &compared;
                 s += &row;
+                s += "\n";
+            }
+            // Paper Table 5's reading: what one component adds to the row without it.
+            let steps = component_steps(&suite.methods);
+            if resamples > 0 && !steps.is_empty() {
+                s +=
+                    "\nWhat each component adds: the row with it − the row without it, seed mean and 95 % interval\n\n\
+                      | Component | row − row without it | 95 % interval | |\n| --- | ---: | --- | --- |\n";
+                for step in steps {
+                    let cells = difference_cells(on_draws_once(step.with), on_draws_once(step.without));
+                    s += &format!(
+                        "| +{} ({} − {}) |{cells}\n",
+                        step.added,
+                        suite.methods[step.with].label(),
+                        suite.methods[step.without].label()
+                    );
+                }
             }
         }
     }
     Ok(s)
+}
+
+/// A row's seed-mean metric per bootstrap draw, or why it could not be computed.
+type OnDraws = std::result::Result<Vec<f64>, String>;
+
+/// `| difference | [lo, hi] | mark |` of `row − reference` per draw (without the leading `|`).
+fn difference_cells(row: Option<OnDraws>, reference: Option<OnDraws>) -> String {
+    match (reference, row) {
+        (Some(Ok(r)), Some(Ok(v))) => {
+            let diffs: Vec<f64> = v.iter().zip(&r).map(|(a, b)| a - b).collect();
+            let i = interval(&diffs);
+            let mark = if i.resolved() { "✓" } else { "~" };
+            format!(" {:+.1} | [{:+.1}, {:+.1}] | {mark} |", i.diff, i.lo, i.hi)
+        }
+        (Some(Err(e)), _) | (_, Some(Err(e))) => format!(" – | no interval: {e} | |"),
+        _ => " – | – | |".to_string(),
+    }
+}
+
+/// One component's step in an ablation: the Pi3DET-Net row `with` it and the row `without` it
+/// (the same components but that one).
+#[derive(Debug, PartialEq)]
+pub struct ComponentStep {
+    pub added: String,
+    pub with: usize,
+    pub without: usize,
+}
+
+/// The suite's component steps: for each Pi3DET-Net row with listed components, the row without
+/// exactly one of them — the nearest such row above it, so a cumulative ablation reads down.
+pub fn component_steps(methods: &[MethodSpec]) -> Vec<ComponentStep> {
+    let set = |m: &MethodSpec| -> Option<std::collections::BTreeSet<Component>> {
+        (m.kind == MethodKind::Pi3detNet).then(|| m.components.as_ref().map(|c| c.iter().copied().collect()))?
+    };
+    let mut out = Vec::new();
+    for (with, m) in methods.iter().enumerate() {
+        let Some(c) = set(m) else { continue };
+        let candidates = (0..with).rev().chain(with + 1..methods.len());
+        let found = candidates.filter_map(|j| Some((j, set(&methods[j])?))).find_map(|(j, d)| {
+            let added: Vec<&Component> = c.difference(&d).collect();
+            (d.is_subset(&c) && added.len() == 1).then(|| (j, *added[0]))
+        });
+        if let Some((without, added)) = found {
+            out.push(ComponentStep { added: format!("{added:?}").to_uppercase(), with, without });
+        }
+    }
+    out
 }
 
 /// Mean and half the range of values (the spread over seeds).

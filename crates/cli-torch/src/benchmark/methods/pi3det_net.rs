@@ -18,17 +18,29 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
         log.line(format!("Pi3DET-Net components: {:?}", cfg.components()));
     }
     cfg.detector = ctx.scheduled(&cfg.detector);
+    // A row without VPP sees the target as the baselines do: through the suite's one shift.
+    if cfg.vpp.is_none() {
+        cfg.target_shift_z = Some(c.target_shift);
+    }
     if let Some(e) = adapt_epochs {
         cfg.ka.epochs = e;
     }
-    let pa = ctx.trained(
-        &format!("pa_{}_{}", task.source, cell.detector),
-        &cfg.detector,
-        &[&task.source],
-        Some("pa"),
-        None,
-        log,
-    )?;
+    // Without RPJ, PFA and GTD, PA trains what source-only trains: the same model, trained once.
+    let same_as_base =
+        DetectorConfig { name: c.base.name.clone(), ..cfg.detector.clone() }.to_toml() == c.base.to_toml();
+    let pa = if same_as_base {
+        log.line("PA without RPJ, PFA and GTD: the source-only model");
+        c.source_model(&c.base, log)?
+    } else {
+        ctx.trained(
+            &format!("pa_{}_{}", task.source, cell.detector),
+            &cfg.detector,
+            &[&task.source],
+            Some("pa"),
+            None,
+            log,
+        )?
+    };
     let source = ctx.split(&task.source, true, log)?;
     let mut msgs = Vec::new();
     let report = adapt::run(
