@@ -6,7 +6,7 @@ use std::time::Instant;
 use pi3det_data::FrameInfo;
 use serde::Serialize;
 
-use crate::bootstrap::{compare, format_comparison, ClassComparison};
+use crate::bootstrap::{self, compare, format_comparison};
 use crate::breakdown::{breakdown, format_breakdown, Breakdown};
 use crate::classes::Overlaps;
 use crate::detections::Detections;
@@ -150,7 +150,7 @@ impl EvalArgs {
                 let t = Instant::now();
                 let c = compare(&infos, &dets, &base, &opts, self.bootstrap, 0)?;
                 tracing::info!("compared with {} in {:.3} s", path.display(), t.elapsed().as_secs_f64());
-                Some(Comparison { baseline: path.clone(), sequences: c.sequences, classes: c.classes })
+                Some(Comparison { baseline: path.clone(), result: c })
             }
             None => None,
         };
@@ -185,9 +185,8 @@ fn timed(f: impl FnOnce() -> Result<EvalReport, EvalError>) -> Result<EvalReport
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Comparison {
     pub baseline: PathBuf,
-    /// The ground truth's sequences, the bootstrap's unit.
-    pub sequences: usize,
-    pub classes: Vec<ClassComparison>,
+    #[serde(flatten)]
+    pub result: bootstrap::Comparison,
 }
 
 /// The `--json` document: the report's fields, plus `breakdown` with `--breakdown` and
@@ -212,7 +211,7 @@ pub fn format_output(report: &EvalReport, breakdown: Option<&Breakdown>, compari
     }
     if let Some(c) = comparison {
         out.push('\n');
-        out.push_str(&format_comparison(&c.classes, "det", "baseline", c.sequences));
+        out.push_str(&format_comparison(&c.result.classes, "det", "baseline", c.result.sequences));
     }
     out
 }
@@ -343,9 +342,9 @@ mod tests {
             Cli::try_parse_from(["x", "--gt", g, "--det", d, "--baseline", d, "--bootstrap", "20"]).unwrap().eval;
         let (report, _, c) = args.evaluate_all().unwrap();
         let c = c.expect("--baseline compares");
-        let car = &c.classes[0];
+        let car = &c.result.classes[0];
         assert_eq!((car.class.as_str(), car.bev.diff, car.bev.resamples, car.bev.resolved()), ("Car", 0.0, 20, false));
-        assert_eq!(c.sequences, 3, "frames without a sequence stand alone");
+        assert_eq!(c.result.sequences, 3, "frames without a sequence stand alone");
         assert!(format_output(&report, None, Some(&c)).contains("det − baseline"));
         let j: serde_json::Value = serde_json::from_str(&json_output(&report, None, Some(&c)).unwrap()).unwrap();
         assert_eq!(j["comparison"]["classes"][0]["class"], "Car");
