@@ -1,5 +1,5 @@
 //! Per-frame overlaps for the three metrics, kept sparse (only pairs that overlap at all), in
-//! f64. Never across frames: the reference's 95% of wasted pairs come from concatenating frames.
+//! f64. Never across frames: most of the reference's wasted pairs come from concatenating frames.
 
 use pi3det_geometry::iou::{height_overlap, BevFootprint};
 use pi3det_geometry::Box3d;

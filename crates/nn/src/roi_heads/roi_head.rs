@@ -627,7 +627,7 @@ mod tests {
     #[test]
     fn overfits_two_boxes() {
         // Tiny tensors: on a busy two-core machine, libtorch's thread hand-offs cost far more
-        // than they save (seen: 0.6 s with one thread, 40 s with two).
+        // than they save.
         tch::set_num_threads(1);
         tch::manual_seed(0);
         let map = CenterMap { h: 24, w: 24, cell: [0.4, 0.4], origin: [0.0, 0.0] };
