@@ -19,6 +19,7 @@ use crate::detections::{Detection, Detections};
 use crate::error::EvalError;
 use crate::options::EvalOptions;
 use crate::run::{evaluate, EvalReport};
+use crate::summary::{summarize, ApSummary};
 
 /// A difference (row − reference) and its bootstrap interval.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -139,32 +140,6 @@ impl Groups {
     }
 }
 
-/// A class's strict-overlap moderate AP_R40 `[BEV, 3D]` in a report.
-struct StrictAp {
-    class: String,
-    iou: f64,
-    num_gt: usize,
-    ap: [f64; 2],
-}
-
-impl StrictAp {
-    fn of(r: &EvalReport) -> Vec<Self> {
-        r.overall
-            .classes
-            .iter()
-            .filter_map(|c| {
-                let s = c.sets.first()?;
-                Some(Self {
-                    class: c.class.clone(),
-                    iou: s.min_overlaps[1],
-                    num_gt: c.num_gt[1],
-                    ap: [s.bev.r40[1], s.d3.r40[1]],
-                })
-            })
-            .collect()
-    }
-}
-
 /// One class of a comparison: AP_R40 at the strict overlap, moderate, of both detection sets
 /// and `det − baseline` with its interval.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -203,16 +178,16 @@ pub fn compare(
     if groups.is_empty() {
         return Err(EvalError::Input("a comparison needs ground-truth frames".into()));
     }
-    let mut per_draw: Vec<(Vec<StrictAp>, Vec<StrictAp>)> = Vec::new();
+    let mut per_draw: Vec<(ApSummary, ApSummary)> = Vec::new();
     for d in draws(&[groups.len()], resamples, seed) {
-        let a = StrictAp::of(&groups.report(&d[0], det, &opts)?);
-        let b = StrictAp::of(&groups.report(&d[0], baseline, &opts)?);
+        let a = summarize(&groups.report(&d[0], det, &opts)?);
+        let b = summarize(&groups.report(&d[0], baseline, &opts)?);
         per_draw.push((a, b));
     }
-    let find = |v: &[StrictAp], class: &str| v.iter().find(|c| c.class == class).map(|c| c.ap);
+    let find = |v: &ApSummary, class: &str| v.classes.iter().find(|c| c.class == class).map(|c| [c.bev_r40, c.d3_r40]);
     let (full_det, full_base) = &per_draw[0];
     let mut out = Vec::new();
-    for c in full_det {
+    for c in &full_det.classes {
         let Some(base) = find(full_base, &c.class) else { continue };
         // Per draw: det − baseline of metric `m` (NaN where a draw lacks the class).
         let diffs = |m: usize| -> Vec<f64> {
@@ -228,7 +203,7 @@ pub fn compare(
             class: c.class.clone(),
             iou: c.iou,
             num_gt: c.num_gt,
-            det: c.ap,
+            det: [c.bev_r40, c.d3_r40],
             baseline: base,
             bev: interval(&diffs(0)),
             d3: interval(&diffs(1)),

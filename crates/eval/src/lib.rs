@@ -11,6 +11,8 @@
 //!   made.
 //! * [`bootstrap::compare`]: one detection set against another on the same split, per class,
 //!   with a paired bootstrap interval over sequences (within noise or resolved).
+//! * [`summarize`]: a report's headline numbers ([`ApSummary`]: per class, strict-overlap
+//!   moderate AP_R40 in BEV and 3D, and the loose overlap's).
 //! * [`evaluate_kitti`]: the protocol itself on frames already in the reference's camera-frame
 //!   form ([`KittiFrame`]).
 //!
@@ -39,6 +41,7 @@ mod prepare;
 pub mod protocol;
 pub mod report;
 pub mod run;
+pub mod summary;
 
 #[cfg(feature = "cli")]
 pub mod cli;
@@ -56,3 +59,4 @@ pub use prepare::METRICS;
 pub use protocol::{default_compute_aos, evaluate_kitti, ClassResult, ClassSpec, GroupResult, MetricAp, SetResult};
 pub use report::{format_openpcdet, format_paper, format_report};
 pub use run::{evaluate, evaluate_dataset, EvalReport};
+pub use summary::{summarize, ApSummary, ClassAp, LooseAp};

@@ -2,57 +2,12 @@
 //! short summary training logs and the demo table use (R40 at moderate difficulty, strict IoU:
 //! Car 0.7, Pedestrian 0.5).
 
-use serde::{Deserialize, Serialize};
-
+pub use pi3det_eval::summary::{summarize, ApSummary, ClassAp, LooseAp};
 pub use pi3det_eval::{format_breakdown, Breakdown};
 use pi3det_eval::{Detections, EvalOptions, EvalReport};
 
 use crate::detect::FrameDetections;
 use crate::error::{NnError, Result};
-
-/// One class's headline numbers.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ClassAp {
-    pub class: String,
-    /// IoU threshold of the strict set (BEV / 3D).
-    pub iou: f64,
-    pub bev_r40: f64,
-    pub d3_r40: f64,
-    pub num_gt: usize,
-    pub num_det: usize,
-    /// The loose set (KITTI's second overlap set: 0.5 for cars, 0.25 for pedestrians), when evaluated.
-    #[serde(default)]
-    pub loose: Option<LooseAp>,
-}
-
-/// BEV / 3D AP_R40 at the loose IoU threshold.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct LooseAp {
-    pub iou: f64,
-    pub bev_r40: f64,
-    pub d3_r40: f64,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
-pub struct ApSummary {
-    pub frames: usize,
-    pub classes: Vec<ClassAp>,
-}
-
-impl ApSummary {
-    pub fn get(&self, class: &str) -> Option<&ClassAp> {
-        self.classes.iter().find(|c| c.class.eq_ignore_ascii_case(class))
-    }
-
-    /// `Car BEV 71.2 3D 60.1 | Pedestrian …`.
-    pub fn one_line(&self) -> String {
-        self.classes
-            .iter()
-            .map(|c| format!("{} BEV@{:.1} {:.1} 3D {:.1}", c.class, c.iou, c.bev_r40, c.d3_r40))
-            .collect::<Vec<_>>()
-            .join(" | ")
-    }
-}
 
 /// Options for the detector's evaluation: its classes; ground truth and detections restricted to
 /// the BEV range the detector sees (`bev_range`), so a ±40 m model is not charged for objects at
@@ -127,31 +82,4 @@ pub fn breakdown(frames: &[FrameDetections], opts: &EvalOptions) -> Result<Break
     let dets = detections(frames)?;
     let gt: Vec<pi3det_data::FrameInfo> = frames.iter().map(|f| f.info.clone()).collect();
     pi3det_eval::breakdown(&gt, &dets, opts).map_err(NnError::from)
-}
-
-pub fn summarize(report: &EvalReport) -> ApSummary {
-    let g = &report.overall;
-    ApSummary {
-        frames: g.num_frames,
-        classes: g
-            .classes
-            .iter()
-            .filter_map(|c| {
-                let s = c.sets.first()?;
-                Some(ClassAp {
-                    class: c.class.clone(),
-                    iou: s.min_overlaps[1],
-                    bev_r40: s.bev.r40[1],
-                    d3_r40: s.d3.r40[1],
-                    num_gt: c.num_gt[1],
-                    num_det: c.num_det,
-                    loose: c.sets.get(1).map(|l| LooseAp {
-                        iou: l.min_overlaps[1],
-                        bev_r40: l.bev.r40[1],
-                        d3_r40: l.d3.r40[1],
-                    }),
-                })
-            })
-            .collect(),
-    }
 }
