@@ -38,6 +38,7 @@ use pi3det_nn::losses::target_negatives::TargetNegativesConfig;
 use pi3det_nn::necks::{GtdConfig, NeckConfig};
 use pi3det_nn::preprocess::vpp::{median_sensor_height, VirtualPlatformPose, VppConfig, VppCounts};
 use pi3det_nn::preprocess::{FrameTransform, Preprocessor, ShiftZ};
+use pi3det_nn::roi_heads::pfa::PfaConfig;
 use pi3det_nn::train::{self, build_augments, TrainOptions};
 
 /// A Pi3DET-Net run's settings (`configs/pi3det_net_cpu.toml`).
@@ -104,6 +105,18 @@ impl std::str::FromStr for Component {
             "pfa" => Ok(Self::Pfa),
             o => Err(format!("unknown component {o:?} (rpj, vpp, gtd, pfa)")),
         }
+    }
+}
+
+/// The paper's abbreviation (RPJ, VPP, GTD, PFA), as tables and logs name a component.
+impl std::fmt::Display for Component {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Rpj => "RPJ",
+            Self::Vpp => "VPP",
+            Self::Gtd => "GTD",
+            Self::Pfa => "PFA",
+        })
     }
 }
 
@@ -194,6 +207,34 @@ impl AdaptConfig {
             }
         }
         c
+    }
+
+    /// The same run with `on` switched on: a component the config lacks comes with its type's
+    /// defaults (RPJ: the paper's U(−5°, 5°); VPP, GTD, PFA: their configs' defaults); one it has
+    /// keeps the config's settings.
+    pub fn with(&self, on: &[Component]) -> Self {
+        let mut c = self.clone();
+        let had = self.components();
+        for o in on.iter().filter(|o| !had.contains(o)) {
+            match o {
+                Component::Rpj => c
+                    .detector
+                    .train
+                    .augment
+                    .push(AugmentConfig::RandomPlatformJitter(RandomPlatformJitterConfig::default())),
+                Component::Vpp => c.vpp = Some(VppConfig::default()),
+                Component::Gtd => c.detector.neck = Some(NeckConfig::Gtd(GtdConfig::default())),
+                Component::Pfa => c.detector.pfa = Some(PfaConfig::default()),
+            }
+        }
+        c
+    }
+
+    /// The same run with exactly the components `keep` (an ablation row): the others switched
+    /// off, missing ones switched on as [`AdaptConfig::with`] does.
+    pub fn exactly(&self, keep: &[Component]) -> Self {
+        let off: Vec<Component> = self.components().into_iter().filter(|x| !keep.contains(x)).collect();
+        self.without(&off).with(keep)
     }
 
     /// Target-frame augmentations in KA: the source's scene-level ones, without ground-truth
@@ -568,7 +609,10 @@ pub fn run(opts: AdaptOptions, on_event: &mut dyn FnMut(AdaptEvent<'_>)) -> Resu
         report.source_only = match &opts.source_only {
             Some(s) => Some(s.clone()),
             None => {
-                let prep = Arc::new(Preprocessor::new(det_cfg)?.with_frame_transform(target_plain.clone()));
+                let prep = match cfg.target_shift_z {
+                    None => plain_prep.clone(),
+                    Some(_) => Arc::new(Preprocessor::new(det_cfg)?.with_frame_transform(target_plain.clone())),
+                };
                 Some(evaluate(&det, prep, v, &out.join("val_source_only.jsonl"))?)
             }
         };
@@ -968,7 +1012,8 @@ mod tests {
     use super::*;
 
     /// The Pi3DET-Net presets parse; the Voxel R-CNN one carries every component on the voxel
-    /// detector (sparse backbone, voxel RoI pooling, GTD, PFA, RPJ).
+    /// detector (sparse backbone, voxel RoI pooling, GTD, PFA, RPJ). The CPU preset leaves RPJ
+    /// out (its comment says why); the others keep the paper's four components.
     #[test]
     fn adapt_presets_parse() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
@@ -979,8 +1024,43 @@ mod tests {
             let voxel = name.contains("voxel");
             assert_eq!(d.backbone_3d.is_some(), voxel, "{name}");
             assert_eq!(d.roi_head.as_ref().is_some_and(|r| r.voxel_pool.is_some()), voxel, "{name}");
-            assert!(d.train.augment.iter().any(|a| matches!(a, AugmentConfig::RandomPlatformJitter(_))));
+            let rpj = d.train.augment.iter().any(|a| matches!(a, AugmentConfig::RandomPlatformJitter(_)));
+            assert_eq!(rpj, name != "pi3det_net_cpu.toml", "{name}: RPJ");
         }
+    }
+
+    /// An ablation row gets exactly its components: `without` drops, `with` adds a missing one with
+    /// its defaults and keeps a present one's settings, and the two undo each other.
+    #[test]
+    fn exactly_switches_components_both_ways() {
+        let all = AdaptConfig::default();
+        assert_eq!(all.components(), vec![Component::Rpj, Component::Vpp, Component::Gtd, Component::Pfa]);
+        let none = all.exactly(&[]);
+        assert!(none.components().is_empty());
+        let rpj = none.exactly(&[Component::Rpj]);
+        assert_eq!(rpj.components(), vec![Component::Rpj]);
+        let jitter = |c: &AdaptConfig| {
+            c.detector
+                .train
+                .augment
+                .iter()
+                .filter_map(|a| match a {
+                    AugmentConfig::RandomPlatformJitter(j) => Some(j.max_deg),
+                    _ => None,
+                })
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(jitter(&rpj), vec![RandomPlatformJitterConfig::default().max_deg]);
+        // A present component keeps its settings (and is not added twice).
+        let mut mild = all.clone();
+        for a in &mut mild.detector.train.augment {
+            if let AugmentConfig::RandomPlatformJitter(j) = a {
+                j.max_deg = 2.0;
+            }
+        }
+        assert_eq!(jitter(&mild.exactly(&[Component::Rpj, Component::Vpp])), vec![2.0]);
+        assert_eq!(none.with(&all.components()).components(), all.components());
+        assert_eq!(all.exactly(&all.components()), all);
     }
 
     /// Loss weights and estimators, precision and layout do not make another network; widths and

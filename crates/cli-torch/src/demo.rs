@@ -47,8 +47,8 @@ pub struct DemoArgs {
     #[arg(long, default_value = "runs/demo")]
     pub out: PathBuf,
     /// Detector config for the vehicle model [default: the detector of the built-in Pi3DET-Net
-    /// preset, configs/pi3det_net_cpu.toml: the two-stage CPU PointPillars with RPJ, GTD and
-    /// PFA]. Adaptation runs only when its network is the adaptation config's.
+    /// preset, configs/pi3det_net_cpu.toml: the two-stage CPU PointPillars with GTD and PFA].
+    /// Adaptation runs only when its network is the adaptation config's.
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Pi3DET-Net config for adapting the vehicle model to the drone and the quadruped

@@ -199,7 +199,7 @@ pub fn component_steps(methods: &[MethodSpec]) -> Vec<ComponentStep> {
             (d.is_subset(&c) && added.len() == 1).then(|| (j, *added[0]))
         });
         if let Some((without, added)) = found {
-            out.push(ComponentStep { added: format!("{added:?}").to_uppercase(), with, without });
+            out.push(ComponentStep { added: added.to_string(), with, without });
         }
     }
     out

@@ -213,7 +213,7 @@ impl MethodSpec {
             (Some(n), _) => n.clone(),
             (None, Some(c)) if c.is_empty() => format!("{} (KA alone)", self.kind.label()),
             (None, Some(c)) => {
-                let names: Vec<String> = c.iter().map(|x| format!("{x:?}").to_uppercase()).collect();
+                let names: Vec<String> = c.iter().map(|x| x.to_string()).collect();
                 format!("{} ({})", self.kind.label(), names.join(" + "))
             }
             (None, None) if self.ros => format!("{} (w/ ROS)", self.kind.label()),

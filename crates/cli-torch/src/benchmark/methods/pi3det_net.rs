@@ -2,7 +2,6 @@
 //! (pseudo-labels through VPP, Knowledge-Adaptation, the guard).
 
 use super::*;
-use pi3det_adapt::pipeline::Component;
 
 /// Pi3DET-Net: PA (shared between cells), then the adaptation stages on the target.
 pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
@@ -11,10 +10,16 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
     let adapt_epochs = c.adapt_epochs;
     let mut outcome = Outcome::default();
     let mut cfg = entry.pi3det_net.clone().expect("a checked suite has the pi3det_net config");
-    // An ablation row: the components it does not keep switched off (its PA trains without them).
+    // An ablation row: exactly the components it keeps (its PA trains with just those). One the
+    // config lacks comes with the paper's defaults, so an ablation can measure a component its
+    // preset leaves out.
     if let Some(keep) = &c.method.components {
-        let off: Vec<Component> = cfg.components().into_iter().filter(|x| !keep.contains(x)).collect();
-        cfg = cfg.without(&off);
+        let had = cfg.components();
+        cfg = cfg.exactly(keep);
+        let added: Vec<String> = keep.iter().filter(|x| !had.contains(x)).map(|x| x.to_string()).collect();
+        if !added.is_empty() {
+            log.line(format!("Pi3DET-Net: {} not in the config, added with the defaults", added.join(", ")));
+        }
         log.line(format!("Pi3DET-Net components: {:?}", cfg.components()));
     }
     cfg.detector = ctx.scheduled(&cfg.detector);
@@ -26,8 +31,7 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
         cfg.ka.epochs = e;
     }
     // Without RPJ, PFA and GTD, PA trains what source-only trains: the same model, trained once.
-    let same_as_base =
-        DetectorConfig { name: c.base.name.clone(), ..cfg.detector.clone() }.to_toml() == c.base.to_toml();
+    let same_as_base = DetectorConfig { name: c.base.name.clone(), ..cfg.detector.clone() } == c.base;
     let pa = if same_as_base {
         log.line("PA without RPJ, PFA and GTD: the source-only model");
         c.source_model(&c.base, log)?
