@@ -184,7 +184,7 @@ pub fn compare(
         let b = summarize(&groups.report(&d[0], baseline, &opts)?);
         per_draw.push((a, b));
     }
-    let find = |v: &ApSummary, class: &str| v.classes.iter().find(|c| c.class == class).map(|c| [c.bev_r40, c.d3_r40]);
+    let find = |v: &ApSummary, class: &str| v.get(class).map(|c| [c.bev_r40, c.d3_r40]);
     let (full_det, full_base) = &per_draw[0];
     let mut out = Vec::new();
     for c in &full_det.classes {
