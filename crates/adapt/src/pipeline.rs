@@ -120,6 +120,14 @@ impl std::fmt::Display for Component {
     }
 }
 
+/// Components as reports and logs list them: `VPP, GTD, PFA`, or `none`.
+pub fn component_names(c: &[Component]) -> String {
+    if c.is_empty() {
+        return "none".into();
+    }
+    c.iter().map(Component::to_string).collect::<Vec<_>>().join(", ")
+}
+
 impl AdaptConfig {
     pub fn from_file(path: &Path) -> Result<Self> {
         Self::from_file_with(path, &[])
@@ -923,7 +931,7 @@ fn compare_with_pa(
 
 /// The report as markdown: AP of the source-only and adapted models, pseudo-label quality.
 pub fn markdown(r: &AdaptReport, cfg: &DetectorConfig) -> String {
-    let mut s = format!("# {} — components {:?}\n\n", r.name, r.components);
+    let mut s = format!("# {} — components {}\n\n", r.name, component_names(&r.components));
     s += "| model on the target | ";
     s += &cfg.classes.iter().map(|c| format!("{c} BEV | {c} 3D")).collect::<Vec<_>>().join(" | ");
     s += " |\n| --- |";

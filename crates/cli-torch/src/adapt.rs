@@ -164,9 +164,9 @@ pub fn run_adapt(args: &AdaptArgs) -> Result<AdaptReport> {
         None => None,
     };
     eprintln!(
-        "{}: components {:?}; {} source, {} target{} frames",
+        "{}: components {}; {} source, {} target{} frames",
         cfg.name,
-        cfg.components(),
+        pipeline::component_names(&cfg.components()),
         source.len(),
         target.len(),
         val.as_ref().map(|v| format!(", {} validation", v.len())).unwrap_or_default()

@@ -246,7 +246,7 @@ fn an_ablation_row_runs_pi3det_net_with_its_components_only() {
     let row = results.iter().find(|r| r.method == "Pi3DET-Net (VPP)").unwrap();
     assert_eq!(row.status, Status::Done, "{:?}", row.error);
     let log = std::fs::read_to_string(out.join("cells/v2q__pi3det_net_vpp__tiny/log.txt")).unwrap();
-    assert!(log.contains("Pi3DET-Net components: [Vpp]"), "{log}");
+    assert!(log.contains("Pi3DET-Net components: VPP"), "{log}");
     // VPP alone leaves PA as source-only's training: the row reuses that model.
     assert!(
         log.contains("PA without RPJ, PFA and GTD: the source-only model") && !log.contains("training pa_"),

@@ -20,7 +20,7 @@ pub(super) fn run(c: &CellRun<'_>, log: &mut Log) -> Result<Outcome> {
         if !added.is_empty() {
             log.line(format!("Pi3DET-Net: {} not in the config, added with the defaults", added.join(", ")));
         }
-        log.line(format!("Pi3DET-Net components: {:?}", cfg.components()));
+        log.line(format!("Pi3DET-Net components: {}", pi3det_adapt::pipeline::component_names(&cfg.components())));
     }
     cfg.detector = ctx.scheduled(&cfg.detector);
     // A row without VPP sees the target as the baselines do: through the suite's one shift.
